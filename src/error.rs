@@ -1,0 +1,80 @@
+//! The library's error type. Every variant that comes from a file names it.
+
+use std::path::PathBuf;
+
+/// Errors returned by the tricons library.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Reading or writing a file failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or directory involved.
+        path: PathBuf,
+        /// The underlying I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A PNG file could not be decoded or encoded.
+    #[error("{}: not a readable PNG: {message}", path.display())]
+    Png {
+        /// The PNG file.
+        path: PathBuf,
+        /// What the decoder reported.
+        message: String,
+    },
+    /// An image has the wrong colour type, bit depth or size.
+    #[error("{}: expected {expected}, found {found}", path.display())]
+    ImageFormat {
+        /// The image file.
+        path: PathBuf,
+        /// What the format requires, e.g. "16-bit grayscale depth".
+        expected: String,
+        /// What the file holds.
+        found: String,
+    },
+    /// A JSON, JSON Lines or text file is malformed or has an invalid field.
+    #[error("{}{}: {message}", path.display(), line.map(|l| format!(" line {l}")).unwrap_or_default())]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number, for line-oriented formats.
+        line: Option<usize>,
+        /// What is wrong, naming the field where there is one.
+        message: String,
+    },
+    /// A recording's manifest has a format version this build cannot read.
+    #[error("{}: recording format version {found} is not supported (this build reads version {supported})", path.display())]
+    UnsupportedVersion {
+        /// The manifest file.
+        path: PathBuf,
+        /// The version found in the file.
+        found: u32,
+        /// The version this build reads.
+        supported: u32,
+    },
+    /// A caller passed an argument outside its valid range.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+}
+
+impl Error {
+    /// An I/O error on `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    /// A parse error in `path` (optionally at a 1-based `line`).
+    pub fn parse(path: impl Into<PathBuf>, line: Option<usize>, message: impl Into<String>) -> Self {
+        Error::Parse {
+            path: path.into(),
+            line,
+            message: message.into(),
+        }
+    }
+}
+
+/// Result with the library's [`Error`].
+pub type Result<T> = std::result::Result<T, Error>;

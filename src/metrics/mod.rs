@@ -1,0 +1,1 @@
+//! NOCS evaluation metrics (in progress).

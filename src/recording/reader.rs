@@ -1,0 +1,145 @@
+//! Reader of the tricons recording format.
+
+use super::Recording;
+use super::annotations::{AnnotationsFile, FrameAnnotations, GtInstance};
+use super::manifest::{MANIFEST_FILE, Manifest};
+use crate::error::{Error, Result};
+use crate::frame::{Intrinsics, RgbdFrame};
+use crate::image_io::{read_color_png, read_depth_png, read_label_png, read_nocs_png};
+use std::path::{Path, PathBuf};
+
+/// A recording in the tricons format, opened for reading.
+#[derive(Clone, Debug)]
+pub struct TriconsRecording {
+    root: PathBuf,
+    manifest: Manifest,
+}
+
+impl TriconsRecording {
+    /// Opens the recording in directory `root` (reads and checks its manifest).
+    pub fn open(root: &Path) -> Result<TriconsRecording> {
+        let manifest = Manifest::read(&root.join(MANIFEST_FILE))?;
+        Ok(TriconsRecording {
+            root: root.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// The manifest.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// The recording directory.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    fn entry(&self, index: usize) -> Result<&super::FrameEntry> {
+        self.manifest.frames.get(index).ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "frame index {index} out of range ({} frames in {})",
+                self.manifest.frames.len(),
+                self.root.display()
+            ))
+        })
+    }
+
+    fn read_annotations_file(&self, index: usize) -> Result<Option<AnnotationsFile>> {
+        let Some(name) = &self.entry(index)?.annotations else {
+            return Ok(None);
+        };
+        let path = self.root.join(name);
+        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+        let file: AnnotationsFile = serde_json::from_str(&text).map_err(|e| Error::parse(&path, None, e.to_string()))?;
+        for (k, inst) in file.instances.iter().enumerate() {
+            inst.validate()
+                .map_err(|m| Error::parse(&path, None, format!("instances[{k}]: {m}")))?;
+        }
+        Ok(Some(file))
+    }
+
+    fn check_size(&self, path: &Path, width: u32, height: u32) -> Result<()> {
+        let k = &self.manifest.intrinsics;
+        if (width, height) != (k.width, k.height) {
+            return Err(Error::ImageFormat {
+                path: path.to_path_buf(),
+                expected: format!("{}x{} as in the manifest", k.width, k.height),
+                found: format!("{width}x{height}"),
+            });
+        }
+        Ok(())
+    }
+}
+
+impl Recording for TriconsRecording {
+    fn describe(&self) -> String {
+        format!(
+            "tricons recording {} (format v{}, {} frames)",
+            self.root.display(),
+            self.manifest.version,
+            self.manifest.frames.len()
+        )
+    }
+
+    fn len(&self) -> usize {
+        self.manifest.frames.len()
+    }
+
+    fn frame_id(&self, index: usize) -> &str {
+        &self.manifest.frames[index].id
+    }
+
+    fn intrinsics(&self) -> Intrinsics {
+        self.manifest.intrinsics
+    }
+
+    fn read_frame(&self, index: usize) -> Result<RgbdFrame> {
+        let entry = self.entry(index)?;
+        let color_path = self.root.join(&entry.color);
+        let depth_path = self.root.join(&entry.depth);
+        let color = read_color_png(&color_path)?;
+        self.check_size(&color_path, color.width, color.height)?;
+        let depth = read_depth_png(&depth_path, self.manifest.depth_scale_m)?;
+        self.check_size(&depth_path, depth.width, depth.height)?;
+        Ok(RgbdFrame {
+            color,
+            depth,
+            intrinsics: self.manifest.intrinsics,
+            timestamp_s: entry.timestamp_s,
+        })
+    }
+
+    fn read_instances(&self, index: usize) -> Result<Option<Vec<GtInstance>>> {
+        Ok(self.read_annotations_file(index)?.map(|f| f.instances))
+    }
+
+    fn read_annotations(&self, index: usize) -> Result<Option<FrameAnnotations>> {
+        let Some(file) = self.read_annotations_file(index)? else {
+            return Ok(None);
+        };
+        let mask = match &file.mask {
+            Some(name) => {
+                let path = self.root.join(name);
+                let m = read_label_png(&path)?;
+                self.check_size(&path, m.width, m.height)?;
+                Some(m)
+            }
+            None => None,
+        };
+        let nocs = match &file.nocs {
+            Some(name) => {
+                let path = self.root.join(name);
+                let m = read_nocs_png(&path)?;
+                self.check_size(&path, m.width, m.height)?;
+                Some(m)
+            }
+            None => None,
+        };
+        Ok(Some(FrameAnnotations {
+            instances: file.instances,
+            mask,
+            nocs,
+        }))
+    }
+}

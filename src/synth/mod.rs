@@ -1,0 +1,1 @@
+//! SynthNOCS benchmark generator (in progress).
