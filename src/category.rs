@@ -25,14 +25,8 @@ pub enum Category {
 
 impl Category {
     /// All categories in id order.
-    pub const ALL: [Category; 6] = [
-        Category::Bottle,
-        Category::Bowl,
-        Category::Camera,
-        Category::Can,
-        Category::Laptop,
-        Category::Mug,
-    ];
+    pub const ALL: [Category; 6] =
+        [Category::Bottle, Category::Bowl, Category::Camera, Category::Can, Category::Laptop, Category::Mug];
 
     /// The 1-based NOCS class id.
     pub fn id(self) -> u8 {

@@ -27,24 +27,11 @@ pub struct Intrinsics {
 
 impl Intrinsics {
     /// REAL275 (NOCS real) intrinsics, 640x480.
-    pub const REAL275: Intrinsics = Intrinsics {
-        width: 640,
-        height: 480,
-        fx: 591.0125,
-        fy: 590.16775,
-        cx: 322.525,
-        cy: 244.11084,
-    };
+    pub const REAL275: Intrinsics =
+        Intrinsics { width: 640, height: 480, fx: 591.0125, fy: 590.16775, cx: 322.525, cy: 244.11084 };
 
     /// CAMERA25 (NOCS synthetic) intrinsics, 640x480.
-    pub const CAMERA25: Intrinsics = Intrinsics {
-        width: 640,
-        height: 480,
-        fx: 577.5,
-        fy: 577.5,
-        cx: 319.5,
-        cy: 239.5,
-    };
+    pub const CAMERA25: Intrinsics = Intrinsics { width: 640, height: 480, fx: 577.5, fy: 577.5, cx: 319.5, cy: 239.5 };
 
     /// Projects a camera-frame point (metres, z > 0) to pixel coordinates.
     pub fn project(&self, p: &Vec3) -> (f64, f64) {
@@ -89,11 +76,7 @@ pub struct ColorImage {
 impl ColorImage {
     /// A black image.
     pub fn new(width: u32, height: u32) -> ColorImage {
-        ColorImage {
-            width,
-            height,
-            data: vec![0; width as usize * height as usize * 3],
-        }
+        ColorImage { width, height, data: vec![0; width as usize * height as usize * 3] }
     }
 
     /// The RGB value at (u, v).
@@ -119,12 +102,7 @@ pub struct DepthImage {
 impl DepthImage {
     /// An image with no measurements.
     pub fn new(width: u32, height: u32, depth_scale_m: f64) -> DepthImage {
-        DepthImage {
-            width,
-            height,
-            data: vec![0; width as usize * height as usize],
-            depth_scale_m,
-        }
+        DepthImage { width, height, data: vec![0; width as usize * height as usize], depth_scale_m }
     }
 
     /// Depth in metres at (u, v), or `None` where there is no measurement.
@@ -148,11 +126,7 @@ pub struct LabelImage {
 impl LabelImage {
     /// An all-background image.
     pub fn new(width: u32, height: u32) -> LabelImage {
-        LabelImage {
-            width,
-            height,
-            data: vec![0; width as usize * height as usize],
-        }
+        LabelImage { width, height, data: vec![0; width as usize * height as usize] }
     }
 
     /// The label at (u, v).
@@ -179,22 +153,14 @@ pub struct NocsMap {
 impl NocsMap {
     /// An all-zero map.
     pub fn new(width: u32, height: u32) -> NocsMap {
-        NocsMap {
-            width,
-            height,
-            data: vec![0; width as usize * height as usize * 3],
-        }
+        NocsMap { width, height, data: vec![0; width as usize * height as usize * 3] }
     }
 
     /// The NOCS coordinate at (u, v), each in [0, 1].
     pub fn coord(&self, u: u32, v: u32) -> [f64; 3] {
         let i = (v as usize * self.width as usize + u as usize) * 3;
         let s = f64::from(NOCS_MAP_MAX);
-        [
-            f64::from(self.data[i]) / s,
-            f64::from(self.data[i + 1]) / s,
-            f64::from(self.data[i + 2]) / s,
-        ]
+        [f64::from(self.data[i]) / s, f64::from(self.data[i + 1]) / s, f64::from(self.data[i + 2]) / s]
     }
 }
 

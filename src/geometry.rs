@@ -40,10 +40,7 @@ impl Pose {
 
     /// A transform from a rotation and a translation in metres.
     pub fn new(rotation: Mat3, translation_m: Vec3) -> Pose {
-        Pose {
-            rotation,
-            translation_m,
-        }
+        Pose { rotation, translation_m }
     }
 
     /// Applies the transform to a point.
@@ -59,10 +56,7 @@ impl Pose {
 
     /// `self * other`: first `other`, then `self`.
     pub fn compose(&self, other: &Pose) -> Pose {
-        Pose::new(
-            self.rotation * other.rotation,
-            self.rotation * other.translation_m + self.translation_m,
-        )
+        Pose::new(self.rotation * other.rotation, self.rotation * other.translation_m + self.translation_m)
     }
 
     /// The 4x4 homogeneous matrix.

@@ -42,36 +42,22 @@ pub fn read_png(path: &Path) -> Result<RawPng> {
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let png_err = |e: png::DecodingError| match e {
         png::DecodingError::IoError(io) => Error::io(path, io),
-        other => Error::Png {
-            path: path.to_path_buf(),
-            message: other.to_string(),
-        },
+        other => Error::Png { path: path.to_path_buf(), message: other.to_string() },
     };
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::EXPAND);
     let mut reader = decoder.read_info().map_err(png_err)?;
-    let size = reader.output_buffer_size().ok_or_else(|| Error::Png {
-        path: path.to_path_buf(),
-        message: "image too large".into(),
-    })?;
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| Error::Png { path: path.to_path_buf(), message: "image too large".into() })?;
     let mut data = vec![0; size];
     let info = reader.next_frame(&mut data).map_err(png_err)?;
     data.truncate(info.buffer_size());
-    Ok(RawPng {
-        width: info.width,
-        height: info.height,
-        color_type: info.color_type,
-        bit_depth: info.bit_depth,
-        data,
-    })
+    Ok(RawPng { width: info.width, height: info.height, color_type: info.color_type, bit_depth: info.bit_depth, data })
 }
 
 fn wrong_format(path: &Path, expected: &str, raw: &RawPng) -> Error {
-    Error::ImageFormat {
-        path: path.to_path_buf(),
-        expected: expected.into(),
-        found: raw.describe(),
-    }
+    Error::ImageFormat { path: path.to_path_buf(), expected: expected.into(), found: raw.describe() }
 }
 
 /// Reads an 8-bit RGB (or RGBA, alpha dropped) colour PNG.
@@ -84,11 +70,7 @@ pub fn read_color_png(path: &Path) -> Result<ColorImage> {
         }
         _ => return Err(wrong_format(path, "8-bit RGB colour", &raw)),
     };
-    Ok(ColorImage {
-        width: raw.width,
-        height: raw.height,
-        data,
-    })
+    Ok(ColorImage { width: raw.width, height: raw.height, data })
 }
 
 /// Reads a 16-bit grayscale depth PNG; `depth_scale_m` is metres per unit.
@@ -97,12 +79,7 @@ pub fn read_depth_png(path: &Path, depth_scale_m: f64) -> Result<DepthImage> {
     if (raw.color_type, raw.bit_depth) != (png::ColorType::Grayscale, png::BitDepth::Sixteen) {
         return Err(wrong_format(path, "16-bit grayscale depth", &raw));
     }
-    Ok(DepthImage {
-        width: raw.width,
-        height: raw.height,
-        data: raw.samples_u16(),
-        depth_scale_m,
-    })
+    Ok(DepthImage { width: raw.width, height: raw.height, data: raw.samples_u16(), depth_scale_m })
 }
 
 /// Reads an 8-bit grayscale label (instance mask) PNG.
@@ -111,11 +88,7 @@ pub fn read_label_png(path: &Path) -> Result<LabelImage> {
     if (raw.color_type, raw.bit_depth) != (png::ColorType::Grayscale, png::BitDepth::Eight) {
         return Err(wrong_format(path, "8-bit grayscale instance mask", &raw));
     }
-    Ok(LabelImage {
-        width: raw.width,
-        height: raw.height,
-        data: raw.data,
-    })
+    Ok(LabelImage { width: raw.width, height: raw.height, data: raw.data })
 }
 
 /// Reads a NOCS map: 16-bit RGB (tricons) or 8-bit RGB (NOCS dataset, rescaled).
@@ -126,15 +99,17 @@ pub fn read_nocs_png(path: &Path) -> Result<NocsMap> {
         (png::ColorType::Rgb, png::BitDepth::Eight) => raw.data.iter().map(|&v| u16::from(v) * 257).collect(),
         _ => return Err(wrong_format(path, "RGB NOCS map (8 or 16 bits)", &raw)),
     };
-    Ok(NocsMap {
-        width: raw.width,
-        height: raw.height,
-        data,
-    })
+    Ok(NocsMap { width: raw.width, height: raw.height, data })
 }
 
 /// Encodes raw samples as PNG bytes (fast deflate; deterministic).
-pub fn encode_png(width: u32, height: u32, color: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Result<Vec<u8>> {
+pub fn encode_png(
+    width: u32,
+    height: u32,
+    color: png::ColorType,
+    depth: png::BitDepth,
+    data: &[u8],
+) -> Result<Vec<u8>> {
     let mut out = Vec::new();
     let enc_err = |e: png::EncodingError| Error::InvalidArgument(format!("PNG encoding failed: {e}"));
     {
@@ -161,13 +136,8 @@ pub fn write_color_png(path: &Path, img: &ColorImage) -> Result<()> {
 
 /// Writes a 16-bit grayscale depth PNG atomically.
 pub fn write_depth_png(path: &Path, img: &DepthImage) -> Result<()> {
-    let bytes = encode_png(
-        img.width,
-        img.height,
-        png::ColorType::Grayscale,
-        png::BitDepth::Sixteen,
-        &u16_to_be(&img.data),
-    )?;
+    let bytes =
+        encode_png(img.width, img.height, png::ColorType::Grayscale, png::BitDepth::Sixteen, &u16_to_be(&img.data))?;
     write_atomic(path, &bytes)
 }
 
@@ -179,13 +149,7 @@ pub fn write_label_png(path: &Path, img: &LabelImage) -> Result<()> {
 
 /// Writes a 16-bit RGB NOCS map PNG atomically.
 pub fn write_nocs_png(path: &Path, img: &NocsMap) -> Result<()> {
-    let bytes = encode_png(
-        img.width,
-        img.height,
-        png::ColorType::Rgb,
-        png::BitDepth::Sixteen,
-        &u16_to_be(&img.data),
-    )?;
+    let bytes = encode_png(img.width, img.height, png::ColorType::Rgb, png::BitDepth::Sixteen, &u16_to_be(&img.data))?;
     write_atomic(path, &bytes)
 }
 
@@ -222,7 +186,10 @@ mod tests {
         let path = dir.path().join("000_depth.png");
         write_label_png(&path, &LabelImage::new(4, 4)).unwrap();
         let err = read_depth_png(&path, 0.001).unwrap_err().to_string();
-        assert!(err.contains("000_depth.png") && err.contains("16-bit grayscale depth") && err.contains("8-bit"), "{err}");
+        assert!(
+            err.contains("000_depth.png") && err.contains("16-bit grayscale depth") && err.contains("8-bit"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -78,8 +78,7 @@ pub fn read_predictions(path: &Path) -> Result<Vec<FramePredictions>> {
         let frame: FramePredictions =
             serde_json::from_str(&line).map_err(|e| Error::parse(path, Some(i + 1), e.to_string()))?;
         for (k, inst) in frame.instances.iter().enumerate() {
-            inst.validate()
-                .map_err(|m| Error::parse(path, Some(i + 1), format!("instances[{k}]: {m}")))?;
+            inst.validate().map_err(|m| Error::parse(path, Some(i + 1), format!("instances[{k}]: {m}")))?;
         }
         frames.push(frame);
     }
@@ -121,7 +120,11 @@ mod tests {
         write_predictions(&path, &frames).unwrap();
         assert_eq!(read_predictions(&path).unwrap(), frames);
 
-        std::fs::write(&path, "{\"frame\":\"a\",\"instances\":[]}\n{\"frame\":\"b\",\"instances\":[{\"class\":\"mug\"}]}\n").unwrap();
+        std::fs::write(
+            &path,
+            "{\"frame\":\"a\",\"instances\":[]}\n{\"frame\":\"b\",\"instances\":[{\"class\":\"mug\"}]}\n",
+        )
+        .unwrap();
         let err = read_predictions(&path).unwrap_err().to_string();
         assert!(err.contains("pred.jsonl line 2"), "{err}");
         std::fs::write(&path, "{\"frame\":\"b\",\"instances\":[{\"class\":\"mug\",\"score\":2,\"R\":[[1,0,0],[0,1,0],[0,0,1]],\"t\":[0,0,1],\"s\":[1,1,1]}]}\n").unwrap();

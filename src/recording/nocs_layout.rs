@@ -23,7 +23,11 @@ impl NocsLayout {
 
     /// Opens a scene directory.
     pub fn open(root: &Path, intrinsics: Option<Intrinsics>) -> Result<NocsLayout> {
-        Ok(NocsLayout { root: root.to_path_buf(), ids: Vec::new(), intrinsics: intrinsics.unwrap_or(Intrinsics::REAL275) })
+        Ok(NocsLayout {
+            root: root.to_path_buf(),
+            ids: Vec::new(),
+            intrinsics: intrinsics.unwrap_or(Intrinsics::REAL275),
+        })
     }
 }
 

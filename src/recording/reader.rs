@@ -19,10 +19,7 @@ impl TriconsRecording {
     /// Opens the recording in directory `root` (reads and checks its manifest).
     pub fn open(root: &Path) -> Result<TriconsRecording> {
         let manifest = Manifest::read(&root.join(MANIFEST_FILE))?;
-        Ok(TriconsRecording {
-            root: root.to_path_buf(),
-            manifest,
-        })
+        Ok(TriconsRecording { root: root.to_path_buf(), manifest })
     }
 
     /// The manifest.
@@ -51,10 +48,10 @@ impl TriconsRecording {
         };
         let path = self.root.join(name);
         let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-        let file: AnnotationsFile = serde_json::from_str(&text).map_err(|e| Error::parse(&path, None, e.to_string()))?;
+        let file: AnnotationsFile =
+            serde_json::from_str(&text).map_err(|e| Error::parse(&path, None, e.to_string()))?;
         for (k, inst) in file.instances.iter().enumerate() {
-            inst.validate()
-                .map_err(|m| Error::parse(&path, None, format!("instances[{k}]: {m}")))?;
+            inst.validate().map_err(|m| Error::parse(&path, None, format!("instances[{k}]: {m}")))?;
         }
         Ok(Some(file))
     }
@@ -102,12 +99,7 @@ impl Recording for TriconsRecording {
         self.check_size(&color_path, color.width, color.height)?;
         let depth = read_depth_png(&depth_path, self.manifest.depth_scale_m)?;
         self.check_size(&depth_path, depth.width, depth.height)?;
-        Ok(RgbdFrame {
-            color,
-            depth,
-            intrinsics: self.manifest.intrinsics,
-            timestamp_s: entry.timestamp_s,
-        })
+        Ok(RgbdFrame { color, depth, intrinsics: self.manifest.intrinsics, timestamp_s: entry.timestamp_s })
     }
 
     fn read_instances(&self, index: usize) -> Result<Option<Vec<GtInstance>>> {
@@ -136,10 +128,6 @@ impl Recording for TriconsRecording {
             }
             None => None,
         };
-        Ok(Some(FrameAnnotations {
-            instances: file.instances,
-            mask,
-            nocs,
-        }))
+        Ok(Some(FrameAnnotations { instances: file.instances, mask, nocs }))
     }
 }

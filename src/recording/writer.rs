@@ -38,11 +38,7 @@ pub fn write_frame_files(
     write_color_png(&root.join(&entry.color), &frame.color)?;
     write_depth_png(&root.join(&entry.depth), &frame.depth)?;
     if let (Some(ann), Some(name)) = (annotations, &entry.annotations) {
-        let mut file = AnnotationsFile {
-            instances: ann.instances.clone(),
-            mask: None,
-            nocs: None,
-        };
+        let mut file = AnnotationsFile { instances: ann.instances.clone(), mask: None, nocs: None };
         if let Some(mask) = &ann.mask {
             let name = format!("{id}_mask.png");
             write_label_png(&root.join(&name), mask)?;
@@ -84,11 +80,7 @@ impl RecordingWriter {
                 ),
             ));
         }
-        let writer = RecordingWriter {
-            root: root.to_path_buf(),
-            manifest,
-            last_flush: Instant::now(),
-        };
+        let writer = RecordingWriter { root: root.to_path_buf(), manifest, last_flush: Instant::now() };
         writer.flush()?;
         Ok(writer)
     }
