@@ -1,0 +1,260 @@
+//! Recording format and NOCS layout: round trips, crash safety, bad input.
+
+use std::fs;
+use std::path::Path;
+use tricons::frame::DEPTH_SCALE_MM;
+use tricons::geometry::{Vec3, rotation_axis_angle};
+use tricons::image_io::{encode_png, write_color_png, write_depth_png, write_label_png};
+use tricons::recording::{
+    FrameAnnotations, GtInstance, Manifest, Recording, RecordingWriter, TriconsRecording, open_recording,
+};
+use tricons::{Category, ColorImage, DepthImage, Error, Intrinsics, LabelImage, NocsMap, Pose, RgbdFrame};
+
+const W: u32 = 32;
+const H: u32 = 24;
+
+fn small_intrinsics() -> Intrinsics {
+    Intrinsics { width: W, height: H, fx: 30.0, fy: 30.0, cx: 15.5, cy: 11.5 }
+}
+
+fn frame(seed: u16) -> RgbdFrame {
+    let mut color = ColorImage::new(W, H);
+    color.data.iter_mut().enumerate().for_each(|(i, v)| *v = (i as u16).wrapping_mul(seed) as u8);
+    let mut depth = DepthImage::new(W, H, DEPTH_SCALE_MM);
+    depth.data.iter_mut().enumerate().for_each(|(i, v)| *v = 500 + (i as u16 % 97) * seed);
+    RgbdFrame { color, depth, intrinsics: small_intrinsics(), timestamp_s: f64::from(seed) / 30.0 }
+}
+
+fn annotations() -> FrameAnnotations {
+    let mut mask = LabelImage::new(W, H);
+    mask.data[40..60].fill(1);
+    let mut nocs = NocsMap::new(W, H);
+    nocs.data[120..180].fill(30000);
+    FrameAnnotations {
+        instances: vec![GtInstance {
+            id: 1,
+            class: Category::Mug,
+            camera_from_object: Pose::new(rotation_axis_angle(&Vec3::y(), 0.4), Vec3::new(0.01, 0.02, 0.6)),
+            size_m: [0.12, 0.1, 0.09],
+            handle_visible: false,
+        }],
+        mask: Some(mask),
+        nocs: Some(nocs),
+    }
+}
+
+fn write_recording(dir: &Path, n: u16) {
+    let mut w = RecordingWriter::create(dir, Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), false).unwrap();
+    for i in 0..n {
+        let ann = (i % 2 == 0).then(annotations);
+        w.write_frame(&format!("{i:06}"), &frame(i + 1), ann.as_ref()).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+fn err_text(e: Error) -> String {
+    e.to_string()
+}
+
+#[test]
+fn writer_and_reader_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 3);
+    let rec = open_recording(dir.path()).unwrap();
+    assert_eq!(rec.len(), 3);
+    assert_eq!(rec.frame_id(2), "000002");
+    for i in 0..3 {
+        assert_eq!(rec.read_frame(i).unwrap(), frame(i as u16 + 1));
+    }
+    assert_eq!(rec.read_annotations(0).unwrap(), Some(annotations()));
+    assert_eq!(rec.read_annotations(1).unwrap(), None);
+    assert_eq!(rec.read_instances(2).unwrap(), Some(annotations().instances));
+}
+
+#[test]
+fn writer_refuses_to_clobber_a_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 1);
+    let m = Manifest::new(small_intrinsics(), DEPTH_SCALE_MM);
+    let err = RecordingWriter::create(dir.path(), m.clone(), false).err().unwrap();
+    assert!(err_text(err).contains("manifest.json"));
+    assert!(RecordingWriter::create(dir.path(), m, true).is_ok());
+}
+
+#[test]
+fn a_killed_writer_leaves_only_complete_frames_listed() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut w = RecordingWriter::create(dir.path(), Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), false).unwrap();
+    w.write_frame("000000", &frame(1), None).unwrap();
+    w.flush().unwrap();
+    // Simulate a kill mid-frame: a temporary file exists, the frame is not listed.
+    fs::write(dir.path().join("000001_color.png.tmp999"), b"half a png").unwrap();
+    drop(w);
+    let rec = TriconsRecording::open(dir.path()).unwrap();
+    assert_eq!(rec.len(), 1);
+    assert_eq!(rec.read_frame(0).unwrap(), frame(1));
+}
+
+#[test]
+fn missing_directory_and_missing_files_name_the_path() {
+    let err = err_text(open_recording(Path::new("/nonexistent/rec")).err().unwrap());
+    assert!(err.contains("/nonexistent/rec"), "{err}");
+
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 2);
+    fs::remove_file(dir.path().join("000001_depth.png")).unwrap();
+    let rec = open_recording(dir.path()).unwrap();
+    let err = err_text(rec.read_frame(1).unwrap_err());
+    assert!(err.contains("000001_depth.png"), "{err}");
+}
+
+#[test]
+fn corrupt_png_and_eight_bit_depth_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 2);
+    let color = dir.path().join("000000_color.png");
+    let bytes = fs::read(&color).unwrap();
+    fs::write(&color, &bytes[..bytes.len() / 3]).unwrap();
+    let rec = open_recording(dir.path()).unwrap();
+    let err = err_text(rec.read_frame(0).unwrap_err());
+    assert!(err.contains("000000_color.png"), "{err}");
+
+    let depth8 = encode_png(W, H, png::ColorType::Grayscale, png::BitDepth::Eight, &[9; (W * H) as usize]).unwrap();
+    fs::write(dir.path().join("000001_depth.png"), depth8).unwrap();
+    let err = err_text(rec.read_frame(1).unwrap_err());
+    assert!(err.contains("000001_depth.png") && err.contains("16-bit"), "{err}");
+}
+
+#[test]
+fn image_size_must_match_the_manifest() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 1);
+    write_color_png(&dir.path().join("000000_color.png"), &ColorImage::new(W + 1, H)).unwrap();
+    let err = err_text(open_recording(dir.path()).unwrap().read_frame(0).unwrap_err());
+    assert!(err.contains("000000_color.png") && err.contains("33x24"), "{err}");
+}
+
+#[test]
+fn malformed_manifest_and_annotations_name_file_and_field() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 1);
+    let manifest = dir.path().join("manifest.json");
+    let good = fs::read_to_string(&manifest).unwrap();
+
+    fs::write(&manifest, "{ not json").unwrap();
+    assert!(err_text(open_recording(dir.path()).err().unwrap()).contains("manifest.json"));
+
+    fs::write(&manifest, good.replace("\"version\": 1", "\"version\": 7")).unwrap();
+    let err = err_text(open_recording(dir.path()).err().unwrap());
+    assert!(err.contains("version 7") && err.contains("manifest.json"), "{err}");
+
+    fs::write(&manifest, good.replace("\"depth_scale_m\": 0.001", "\"depth_scale_m\": -1.0")).unwrap();
+    assert!(err_text(open_recording(dir.path()).err().unwrap()).contains("depth_scale_m"));
+
+    fs::write(&manifest, good.replace("\"fx\": 30.0", "\"fx\": \"wide\"")).unwrap();
+    assert!(err_text(open_recording(dir.path()).err().unwrap()).contains("manifest.json"));
+
+    fs::write(&manifest, &good).unwrap();
+    let gt = dir.path().join("000000_gt.json");
+    let gt_text = fs::read_to_string(&gt).unwrap();
+    fs::write(&gt, gt_text.replace("\"mug\"", "\"chair\"")).unwrap();
+    let err = err_text(open_recording(dir.path()).unwrap().read_instances(0).unwrap_err());
+    assert!(err.contains("000000_gt.json") && err.contains("chair"), "{err}");
+
+    fs::write(&gt, gt_text.replace("\"s\": [\n        0.12", "\"s\": [\n        -0.12")).unwrap();
+    let err = err_text(open_recording(dir.path()).unwrap().read_instances(0).unwrap_err());
+    assert!(err.contains("000000_gt.json") && err.contains("field s"), "{err}");
+}
+
+/// Writes a one-frame NOCS-layout scene with a box-shaped object seen face-on
+/// at a known similarity transform; returns (pose, size).
+fn write_nocs_scene(dir: &Path) -> (Pose, [f64; 3]) {
+    let k = Intrinsics::REAL275;
+    let rotation = rotation_axis_angle(&Vec3::new(0.3, 1.0, 0.2), 0.5);
+    let pose = Pose::new(rotation, Vec3::new(0.02, -0.01, 0.7));
+    let size = [0.16, 0.1, 0.12];
+    let diag = size.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (w, h) = (k.width, k.height);
+    let mut color = ColorImage::new(w, h);
+    color.data.fill(90);
+    let mut depth = DepthImage::new(w, h, DEPTH_SCALE_MM);
+    let mut mask = vec![255u8; (w * h) as usize];
+    let mut coord = vec![0u8; (w * h * 3) as usize];
+    // Sample the object's front face (z = +size/2), project, splat.
+    let steps = 200;
+    for a in 0..=steps {
+        for b in 0..=steps {
+            let p_obj = Vec3::new(
+                (a as f64 / steps as f64 - 0.5) * size[0],
+                (b as f64 / steps as f64 - 0.5) * size[1],
+                -size[2] / 2.0,
+            );
+            let p_cam = pose.transform_point(&p_obj);
+            let (u, v) = k.project(&p_cam);
+            let (u, v) = (u.round() as u32, v.round() as u32);
+            let i = (v * w + u) as usize;
+            depth.data[i] = (p_cam.z * 1000.0).round() as u16;
+            mask[i] = 3;
+            let n = p_obj / diag + Vec3::repeat(0.5);
+            coord[i * 3] = (n.x * 255.0).round() as u8;
+            coord[i * 3 + 1] = (n.y * 255.0).round() as u8;
+            coord[i * 3 + 2] = ((1.0 - n.z) * 255.0).round() as u8; // stored flipped
+        }
+    }
+    write_color_png(&dir.join("0000_color.png"), &color).unwrap();
+    write_depth_png(&dir.join("0000_depth.png"), &depth).unwrap();
+    write_label_png(&dir.join("0000_mask.png"), &LabelImage { width: w, height: h, data: mask }).unwrap();
+    fs::write(dir.join("0000_coord.png"), encode_png(w, h, png::ColorType::Rgb, png::BitDepth::Eight, &coord).unwrap())
+        .unwrap();
+    fs::write(dir.join("0000_meta.txt"), "3 3 camera_canon_norm\n5 0 distractor\n").unwrap();
+    (pose, size)
+}
+
+#[test]
+fn nocs_layout_recovers_the_pose_from_nocs_map_and_depth() {
+    let dir = tempfile::tempdir().unwrap();
+    let (pose, size) = write_nocs_scene(dir.path());
+    let rec = open_recording(dir.path()).unwrap();
+    assert!(rec.describe().contains("NOCS layout"));
+    assert_eq!(rec.len(), 1);
+    assert_eq!(rec.frame_id(0), "0000");
+    assert_eq!(rec.intrinsics(), Intrinsics::REAL275);
+    let frame = rec.read_frame(0).unwrap();
+    assert_eq!(frame.depth.depth_scale_m, DEPTH_SCALE_MM);
+    let ann = rec.read_annotations(0).unwrap().unwrap();
+    assert_eq!(ann.instances.len(), 1);
+    let g = &ann.instances[0];
+    assert_eq!((g.id, g.class), (3, Category::Camera));
+    let angle = tricons::geometry::rotation_angle_deg(&g.camera_from_object.rotation, &pose.rotation);
+    assert!(angle < 1.0, "rotation off by {angle} deg");
+    assert!((g.camera_from_object.translation_m - pose.translation_m).norm() < 0.005);
+    // Only the front face is seen: x and y extents are recovered, z is not.
+    assert!((g.size_m[0] - size[0]).abs() < 0.005 && (g.size_m[1] - size[1]).abs() < 0.005, "{:?}", g.size_m);
+    let mask = ann.mask.unwrap();
+    assert!(mask.data.iter().all(|&l| l == 0 || l == 3));
+}
+
+#[test]
+fn nocs_layout_bad_meta_and_depth_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    write_nocs_scene(dir.path());
+    fs::write(dir.path().join("0000_meta.txt"), "3 3 camera\nthree 3 camera\n").unwrap();
+    let rec = open_recording(dir.path()).unwrap();
+    let err = err_text(rec.read_annotations(0).unwrap_err());
+    assert!(err.contains("0000_meta.txt line 2"), "{err}");
+    fs::write(dir.path().join("0000_meta.txt"), "3 9 spaceship\n").unwrap();
+    assert!(err_text(rec.read_annotations(0).unwrap_err()).contains("class_id"));
+
+    let depth8 = encode_png(640, 480, png::ColorType::Grayscale, png::BitDepth::Eight, &vec![1; 640 * 480]).unwrap();
+    fs::write(dir.path().join("0000_depth.png"), depth8).unwrap();
+    let err = err_text(rec.read_frame(0).unwrap_err());
+    assert!(err.contains("0000_depth.png") && err.contains("16-bit"), "{err}");
+}
+
+#[test]
+fn a_directory_that_is_neither_layout_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    fs::write(dir.path().join("notes.txt"), "hello").unwrap();
+    let err = err_text(open_recording(dir.path()).err().unwrap());
+    assert!(err.contains("neither a tricons recording"), "{err}");
+}
