@@ -75,14 +75,14 @@ impl Manifest {
             serde_json::from_str(&text).map_err(|e| Error::parse(path, None, e.to_string()))?;
         // Check the version before the schema, so a future manifest gets a
         // version error rather than a confusing field error.
-        if let Some(found) = value.get("version").and_then(|v| v.as_u64()) {
-            if found != u64::from(RECORDING_FORMAT_VERSION) {
-                return Err(Error::UnsupportedVersion {
-                    path: path.to_path_buf(),
-                    found: u32::try_from(found).unwrap_or(u32::MAX),
-                    supported: RECORDING_FORMAT_VERSION,
-                });
-            }
+        if let Some(found) = value.get("version").and_then(|v| v.as_u64())
+            && found != u64::from(RECORDING_FORMAT_VERSION)
+        {
+            return Err(Error::UnsupportedVersion {
+                path: path.to_path_buf(),
+                found: u32::try_from(found).unwrap_or(u32::MAX),
+                supported: RECORDING_FORMAT_VERSION,
+            });
         }
         let manifest: Manifest = serde_json::from_value(value).map_err(|e| Error::parse(path, None, e.to_string()))?;
         manifest.validate().map_err(|m| Error::parse(path, None, m))?;

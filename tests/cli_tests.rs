@@ -1,0 +1,134 @@
+//! The `tricons` binary as a user runs it: help texts, the synth -> inspect ->
+//! eval oracle path, and clear non-zero exits on bad input.
+
+use std::fs;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn tricons(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tricons")).args(args).env("RUST_LOG", "warn").output().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A failure the way the guide wants it: non-zero exit, a message, no panic.
+fn assert_clean_failure(o: &Output, needle: &str) {
+    let err = stderr(o);
+    assert!(!o.status.success(), "expected failure, got success; stderr: {err}");
+    assert!(!err.contains("panicked"), "panicked: {err}");
+    assert!(err.contains(needle), "stderr does not mention {needle:?}: {err}");
+}
+
+fn synth(dir: &Path, frames: &str, seed: &str) {
+    let o = tricons(&["synth", "--out", dir.to_str().unwrap(), "--frames", frames, "--seed", seed]);
+    assert!(o.status.success(), "synth failed: {}", stderr(&o));
+}
+
+#[test]
+fn every_command_has_help_with_an_example() {
+    for cmd in [&["--help"][..], &["synth", "--help"], &["eval", "--help"], &["inspect", "--help"]] {
+        let o = tricons(cmd);
+        assert!(o.status.success());
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(text.contains("Example"), "{cmd:?}: {text}");
+    }
+}
+
+#[test]
+fn ground_truth_as_predictions_scores_100_everywhere_in_both_iou_modes() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    synth(&rec, "4", "11");
+    let o = tricons(&["inspect", rec.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("frames with ground truth: 4 of 4"));
+
+    let o = tricons(&["inspect", rec.to_str().unwrap(), "--predictions"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let pred = dir.path().join("gt.jsonl");
+    fs::write(&pred, &o.stdout).unwrap();
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 4);
+
+    for mode in ["published", "corrected"] {
+        let json = dir.path().join(format!("{mode}.json"));
+        let o = tricons(&[
+            "eval",
+            "--gt",
+            rec.to_str().unwrap(),
+            "--pred",
+            pred.to_str().unwrap(),
+            "--iou",
+            mode,
+            "--json",
+            json.to_str().unwrap(),
+            "--pose-threshold",
+            "15deg5cm",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let table = String::from_utf8_lossy(&o.stdout);
+        assert!(table.contains(mode), "table must name the IoU variant: {table}");
+        let report: serde_json::Value = serde_json::from_str(&fs::read_to_string(&json).unwrap()).unwrap();
+        let means = report["mean"].as_object().expect("report has a mean object");
+        assert!(means.len() >= 8, "7 standard metrics + 1 extra: {means:?}");
+        for (metric, v) in means {
+            assert_eq!(v.as_f64(), Some(100.0), "{mode} {metric}");
+        }
+    }
+}
+
+#[test]
+fn synth_is_deterministic_and_never_clobbers_a_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    synth(&a, "2", "5");
+    synth(&b, "2", "5");
+    let mut names: Vec<_> = fs::read_dir(&a).unwrap().map(|e| e.unwrap().file_name()).collect();
+    names.sort();
+    assert!(names.len() >= 9, "{names:?}");
+    for n in &names {
+        assert_eq!(fs::read(a.join(n)).unwrap(), fs::read(b.join(n)).unwrap(), "{n:?} differs");
+    }
+    let before = fs::read(a.join("manifest.json")).unwrap();
+    let o = tricons(&["synth", "--out", a.to_str().unwrap(), "--frames", "1", "--seed", "9"]);
+    assert_clean_failure(&o, "manifest.json");
+    assert_eq!(fs::read(a.join("manifest.json")).unwrap(), before);
+
+    let o = tricons(&["synth", "--split", "test", "--seed", "3", "--out", dir.path().join("t").to_str().unwrap()]);
+    assert_clean_failure(&o, "fixed seed");
+}
+
+#[test]
+fn bad_input_fails_cleanly_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    synth(&rec, "2", "3");
+    let rec_s = rec.to_str().unwrap();
+
+    let o = tricons(&["inspect", dir.path().join("missing").to_str().unwrap()]);
+    assert_clean_failure(&o, "missing");
+
+    // Malformed predictions: the file and the line are named.
+    let pred = dir.path().join("pred.jsonl");
+    fs::write(&pred, "{\"frame\":\"000000\",\"instances\":[]}\n{\"frame\": 12\n").unwrap();
+    let o = tricons(&["eval", "--gt", rec_s, "--pred", pred.to_str().unwrap()]);
+    assert_clean_failure(&o, "pred.jsonl line 2");
+
+    // A prediction for a frame the recording does not have.
+    fs::write(&pred, "{\"frame\":\"999999\",\"instances\":[]}\n").unwrap();
+    let o = tricons(&["eval", "--gt", rec_s, "--pred", pred.to_str().unwrap()]);
+    assert_clean_failure(&o, "999999");
+
+    // Corrupt colour PNG, 8-bit depth, wrong manifest version.
+    let color = rec.join("000000_color.png");
+    fs::write(&color, b"\x89PNG\r\n\x1a\nbroken").unwrap();
+    let o = tricons(&["inspect", rec_s]);
+    assert_clean_failure(&o, "000000_color.png");
+
+    let manifest = rec.join("manifest.json");
+    let text = fs::read_to_string(&manifest).unwrap();
+    fs::write(&manifest, text.replace("\"version\": 1", "\"version\": 2")).unwrap();
+    let o = tricons(&["eval", "--gt", rec_s, "--pred", pred.to_str().unwrap()]);
+    assert_clean_failure(&o, "version 2");
+}
