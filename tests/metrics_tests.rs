@@ -259,6 +259,21 @@ fn published_iou_matches_hand_computation() {
 }
 
 #[test]
+fn published_iou_of_disjoint_side_by_side_boxes_is_high() {
+    // The reference flaw in numbers: two disjoint boxes 20 cm (or 50 cm) apart
+    // at the same depth. Expected value from an independent plain-Python
+    // evaluation of the per-corner formula.
+    let size = [0.12, 0.09, 0.07];
+    let a = axis_pose([0.0, 0.0, 0.7]);
+    for dx in [0.2, 0.5] {
+        let b = axis_pose([dx, 0.0, 0.7]);
+        let published = iou_3d(&a, &size, &b, &size, IouMode::Published);
+        assert!((published - 0.713_154_227_811_150_6).abs() < 1e-9, "{published}");
+        assert_eq!(iou_3d(&a, &size, &b, &size, IouMode::Corrected), 0.0);
+    }
+}
+
+#[test]
 fn iou_translation_invariance() {
     let sa = [0.12, 0.09, 0.07];
     let sb = [0.1, 0.1, 0.08];
