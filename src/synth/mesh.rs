@@ -250,14 +250,14 @@ impl TriMesh {
         let t0 = tangent(0);
         let helper = if t0.x.abs() < 0.9 { Vec3::x() } else { Vec3::y() };
         let mut u = unit_or(t0.cross(&helper), Vec3::z());
-        for i in 0..n {
+        for (i, &centre) in path.iter().enumerate() {
             let t = tangent(i);
             u = unit_or(u - t * u.dot(&t), u);
             let v = t.cross(&u);
             for k in 0..sides {
                 let a = TAU * k as f64 / sides as f64;
                 let dir = u * a.cos() + v * a.sin();
-                m.push_vertex(path[i] + dir * radius, dir);
+                m.push_vertex(centre + dir * radius, dir);
             }
         }
         let rings = if closed { n } else { n - 1 };

@@ -215,8 +215,8 @@ impl Lighting {
             if ndl <= 0.0 {
                 continue;
             }
-            for c in 0..3 {
-                diffuse[c] += l.color[c] * ndl;
+            for (d, c) in diffuse.iter_mut().zip(l.color) {
+                *d += c * ndl;
             }
             if mat.specular > 0.0 {
                 let h = [l.dir[0] + v[0], l.dir[1] + v[1], l.dir[2] + v[2]];
@@ -224,8 +224,8 @@ impl Lighting {
                 let ndh = (dot(n, h) / hn).max(0.0);
                 let s = mat.specular * ndh.powf(mat.shininess);
                 spec = spec.max(s);
-                for c in 0..3 {
-                    spec_rgb[c] += s * l.color[c];
+                for (o, c) in spec_rgb.iter_mut().zip(l.color) {
+                    *o += s * c;
                 }
             }
         }
