@@ -1,0 +1,47 @@
+//! The `tricons` command-line tool.
+
+mod eval;
+mod inspect;
+mod progress;
+mod synth;
+
+use clap::{Parser, Subcommand};
+
+/// tricons: category-level 6D object pose estimation on edge boards.
+#[derive(Parser)]
+#[command(name = "tricons", version, about, long_about = None, propagate_version = true)]
+#[command(after_help = "Examples:\n  tricons synth --split test --out data/synthnocs-test\n  \
+    tricons inspect data/synthnocs-test --predictions > gt.jsonl\n  \
+    tricons eval --gt data/synthnocs-test --pred gt.jsonl --iou corrected\n\n\
+    Set RUST_LOG=debug for more detail.")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render SynthNOCS frames (RGB-D with ground truth) into a recording.
+    Synth(synth::Args),
+    /// Score predictions against a recording's ground truth with the NOCS protocol.
+    Eval(eval::Args),
+    /// Print what a recording holds, or its ground truth as predictions.
+    Inspect(inspect::Args),
+}
+
+fn main() -> std::process::ExitCode {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("info")).format_timestamp(None).init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Synth(args) => synth::run(args),
+        Command::Eval(args) => eval::run(args),
+        Command::Inspect(args) => inspect::run(args),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
