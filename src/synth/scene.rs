@@ -4,7 +4,7 @@
 
 use super::mesh::TriMesh;
 use super::rng::Rng;
-use super::shading::{Light, Lighting, Material, Pattern, random_color};
+use super::shading::{Light, Lighting, Material, Pattern, hsv, random_color};
 use super::shapes::{ObjectModel, generate_object};
 use crate::category::Category;
 use crate::geometry::{Mat3, Pose, Vec3, rotation_axis_angle, rotation_y};
@@ -219,7 +219,18 @@ pub fn sample_scene(params: &SceneParams, rng: &mut Rng) -> Scene {
         0,
     );
     let top = match rng.below(4) {
-        0 => Material { pattern: Pattern::Wood { freq: rng.range(3.0, 9.0) as f32 }, ..Material::random(rng, 0.0) },
+        0 => {
+            let (h, v) = (rng.range(0.04, 0.11) as f32, rng.range(0.35, 0.75) as f32);
+            let base = hsv(h, rng.range(0.45, 0.8) as f32, v);
+            let alt = hsv(h, 0.8, v * 0.6);
+            Material {
+                base,
+                alt,
+                pattern: Pattern::Wood { freq: rng.range(8.0, 25.0) as f32 },
+                specular: 0.1,
+                shininess: 16.0,
+            }
+        }
         1 => Material { pattern: Pattern::Checker { freq: rng.range(3.0, 12.0) as f32 }, ..Material::random(rng, 0.0) },
         2 => Material { pattern: Pattern::Noise { freq: rng.range(5.0, 40.0) as f32 }, ..Material::random(rng, 0.0) },
         _ => Material {
@@ -248,7 +259,7 @@ pub fn sample_scene(params: &SceneParams, rng: &mut Rng) -> Scene {
     }
 
     // Lights: ambient plus one or two directional lights from above.
-    let ambient = rng.range(0.2, 0.45) as f32;
+    let ambient = rng.range(0.25, 0.5) as f32;
     let warm = rng.range(-0.05, 0.05) as f32;
     let mut lights = Vec::new();
     let n_lights = 1 + rng.below(2);

@@ -15,7 +15,9 @@ pub const DEPTH_UNIT_M: f32 = 0.001;
 pub const NOISE_SIGMA0_M: f32 = 0.0004;
 /// See [`NOISE_SIGMA0_M`] (metres of sigma per square metre of depth).
 pub const NOISE_SIGMA_Z2_PER_M: f32 = 0.0012;
-/// A depth jump to a 4-neighbour larger than this fraction of z marks an edge.
+/// Depth assumed where nothing was hit (for edge detection), metres.
+const FAR_M: f32 = 100.0;
+/// A depth jump to a 4-neighbour larger than this fraction of the nearer depth marks an edge.
 pub const EDGE_JUMP_REL: f32 = 0.03;
 /// Dropout probability of pixels next to a depth edge.
 pub const EDGE_DROPOUT_P: f64 = 0.55;
@@ -51,34 +53,46 @@ pub fn depth_image(gb: &GBuffer, noise: bool, rng: &mut Rng) -> DepthImage {
         }
         return img;
     }
-    let z = &gb.depth_m;
-    let far = |v: f32| if v > 0.0 { v } else { 100.0 };
+    // Edge flags: bit 0 = depth jump to a 4-neighbour, bit 1 = jump two pixels away horizontally.
+    let z: Vec<f32> = gb.depth_m.iter().map(|&v| if v > 0.0 { v } else { FAR_M }).collect();
+    let mut edge = vec![0u8; w * h];
+    let jump = |a: f32, b: f32| (a - b).abs() > EDGE_JUMP_REL * a.min(b);
     for v in 0..h {
+        let row = v * w;
         for u in 0..w {
-            let i = v * w + u;
-            let zi = z[i];
-            if zi <= 0.0 {
-                continue;
+            let i = row + u;
+            if u + 1 < w && jump(z[i], z[i + 1]) {
+                edge[i] |= 1;
+                edge[i + 1] |= 1;
             }
-            let zc = far(zi);
-            let thr = EDGE_JUMP_REL * zc;
-            let jump = |j: usize| (far(z[j]) - zc).abs() > thr;
-            let near_edge = (u > 0 && jump(i - 1))
-                || (u + 1 < w && jump(i + 1))
-                || (v > 0 && jump(i - w))
-                || (v + 1 < h && jump(i + w));
-            let near_edge2 = (u > 1 && jump(i - 2)) || (u + 2 < w && jump(i + 2));
-            let r = rng.uniform();
-            if (near_edge && r < EDGE_DROPOUT_P)
-                || (near_edge2 && r < EDGE_DROPOUT_P2)
-                || (gb.albedo_luma[i] < DARK_LUMA && r < DARK_DROPOUT_P)
-                || (gb.specular[i] > SPECULAR_LIMIT && r < SPECULAR_DROPOUT_P)
-            {
-                continue;
+            if u + 2 < w && jump(z[i], z[i + 2]) {
+                edge[i] |= 2;
+                edge[i + 2] |= 2;
             }
-            let sigma = NOISE_SIGMA0_M + NOISE_SIGMA_Z2_PER_M * zi * zi;
-            img.data[i] = quantize(zi + sigma * rng.approx_normal());
+            if v + 1 < h && jump(z[i], z[i + w]) {
+                edge[i] |= 1;
+                edge[i + w] |= 1;
+            }
         }
+    }
+    let p = |x: f64| (x * 4_294_967_296.0) as u64;
+    let (p_edge, p_edge2, p_dark, p_spec) =
+        (p(EDGE_DROPOUT_P), p(EDGE_DROPOUT_P2), p(DARK_DROPOUT_P), p(SPECULAR_DROPOUT_P));
+    for (i, &zi) in gb.depth_m.iter().enumerate() {
+        if zi <= 0.0 {
+            continue;
+        }
+        let r = rng.next_u64() >> 32;
+        let e = edge[i];
+        if (e & 1 != 0 && r < p_edge)
+            || (e & 2 != 0 && r < p_edge2)
+            || (gb.albedo_luma[i] < DARK_LUMA && r < p_dark)
+            || (gb.specular[i] > SPECULAR_LIMIT && r < p_spec)
+        {
+            continue;
+        }
+        let sigma = NOISE_SIGMA0_M + NOISE_SIGMA_Z2_PER_M * zi * zi;
+        img.data[i] = quantize(zi + sigma * rng.approx_normal());
     }
     let blobs = rng.below(MAX_BLOBS + 1);
     for _ in 0..blobs {
@@ -99,12 +113,20 @@ pub fn depth_image(gb: &GBuffer, noise: bool, rng: &mut Rng) -> DepthImage {
     img
 }
 
-/// The 8-bit colour image, with mild Gaussian-like noise when `rng` is given.
+/// The 8-bit colour image, with mild noise (triangular, sigma [`COLOR_NOISE_LEVELS`]) when `rng` is given.
 pub fn color_image(gb: &GBuffer, mut rng: Option<&mut Rng>) -> ColorImage {
     let mut img = ColorImage::new(gb.width as u32, gb.height as u32);
     for (o, c) in img.data.chunks_exact_mut(3).zip(&gb.color) {
+        // One 64-bit draw per pixel: per channel the sum of two 10-bit uniforms
+        // (triangular, mean 0, unit variance after scaling).
+        let bits = rng.as_deref_mut().map_or(0, |r| r.next_u64());
         for k in 0..3 {
-            let n = rng.as_deref_mut().map_or(0.0, |r| COLOR_NOISE_LEVELS * r.approx_normal());
+            let n = if rng.is_some() {
+                let a = ((bits >> (20 * k)) & 0x3FF) as f32 + ((bits >> (20 * k + 10)) & 0x3FF) as f32;
+                (a / 1023.0 - 1.0) * 2.449_489_7 * COLOR_NOISE_LEVELS
+            } else {
+                0.0
+            };
             o[k] = (c[k] * 255.0 + n).round().clamp(0.0, 255.0) as u8;
         }
     }

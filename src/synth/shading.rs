@@ -74,8 +74,8 @@ impl Material {
             }
             Pattern::Noise { freq } => value_noise([p[0] * freq, p[1] * freq, p[2] * freq]),
             Pattern::Wood { freq } => {
-                let n = value_noise([p[0] * 2.0, p[1] * 2.0, p[2] * 9.0]);
-                let r = (p[0] * freq + 3.0 * n).fract().abs();
+                let n = value_noise([p[0] * 1.5, p[1] * 1.5, p[2] * 12.0]);
+                let r = (p[0] * freq + 0.8 * n).fract().abs();
                 r * r * 0.8
             }
             Pattern::Band { y0, y1, freq } => {

@@ -103,7 +103,7 @@ fn label(rng: &mut Rng, body: Material, y0: f64, y1: f64) -> Material {
     Material {
         base: body.base,
         alt: random_color(rng),
-        pattern: Pattern::Band { y0: y0 as f32, y1: y1 as f32, freq: rng.range(8.0, 40.0) as f32 },
+        pattern: Pattern::Band { y0: y0 as f32, y1: y1 as f32, freq: rng.range(4.0, 16.0) as f32 },
         specular: body.specular,
         shininess: body.shininess,
     }
