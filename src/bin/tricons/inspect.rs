@@ -76,7 +76,7 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     writeln!(out, "frames with ground truth: {annotated} of {}", rec.len())?;
-    if rec.len() > 0 {
+    if !rec.is_empty() {
         let f = rec.read_frame(0)?;
         let valid = f.depth.data.iter().filter(|&&d| d != 0).count();
         writeln!(
