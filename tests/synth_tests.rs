@@ -36,8 +36,8 @@ fn consistency(f: &SynthFrame, c: &mut Consistency) {
                 let Some(z) = f.frame.depth.depth_m(u, v) else { continue };
                 let p = inv.transform_point(&k.backproject(f64::from(u), f64::from(v), z));
                 n += 1;
-                // box grown by 5% of each size (2.5% per side) plus 1% of the diagonal
-                if (0..3).all(|a| p[a].abs() <= inst.size_m[a] * 0.5 * 1.05 + 0.01 * diag) {
+                // the GT box grown by 5% (each size x 1.05), as the acceptance criterion states
+                if (0..3).all(|a| p[a].abs() <= inst.size_m[a] * 0.5 * 1.05) {
                     inside += 1;
                 }
                 let q = nocs.coord(u, v);

@@ -67,13 +67,21 @@ pub fn to_json_line(frame: &FramePredictions) -> String {
 }
 
 /// Reads a predictions file; errors name the file, the line and the field.
+/// Entry `k` of the result is line `k + 1` of the file (blank lines may only
+/// trail).
 pub fn read_predictions(path: &Path) -> Result<Vec<FramePredictions>> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut frames = Vec::new();
+    let mut blank_line = None;
     for (i, line) in BufReader::new(file).lines().enumerate() {
         let line = line.map_err(|e| Error::io(path, e))?;
         if line.trim().is_empty() {
+            blank_line.get_or_insert(i + 1);
             continue;
+        }
+        // Blank lines may only trail, so that entry k is always on line k + 1.
+        if let Some(blank) = blank_line {
+            return Err(Error::parse(path, Some(blank), "blank line between frames (one JSON object per line)"));
         }
         let frame: FramePredictions =
             serde_json::from_str(&line).map_err(|e| Error::parse(path, Some(i + 1), e.to_string()))?;
@@ -130,5 +138,10 @@ mod tests {
         std::fs::write(&path, "{\"frame\":\"b\",\"instances\":[{\"class\":\"mug\",\"score\":2,\"R\":[[1,0,0],[0,1,0],[0,0,1]],\"t\":[0,0,1],\"s\":[1,1,1]}]}\n").unwrap();
         let err = read_predictions(&path).unwrap_err().to_string();
         assert!(err.contains("line 1") && err.contains("score"), "{err}");
+        std::fs::write(&path, "{\"frame\":\"a\",\"instances\":[]}\n\n{\"frame\":\"b\",\"instances\":[]}\n").unwrap();
+        let err = read_predictions(&path).unwrap_err().to_string();
+        assert!(err.contains("line 2") && err.contains("blank"), "{err}");
+        std::fs::write(&path, "{\"frame\":\"a\",\"instances\":[]}\n\n\n").unwrap();
+        assert_eq!(read_predictions(&path).unwrap().len(), 1);
     }
 }
