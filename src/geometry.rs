@@ -170,6 +170,75 @@ impl From<Pose> for PoseWire {
     }
 }
 
+/// In [`fit_similarity_robust`], residuals above this multiple of the median
+/// are dropped before the refit.
+pub const OUTLIER_MEDIAN_FACTOR: f64 = 3.0;
+
+/// A similarity transform `y = scale * pose.rotation * x + pose.translation_m`.
+#[derive(Clone, Copy, Debug)]
+pub struct SimilarityFit {
+    /// Scale factor.
+    pub scale: f64,
+    /// Rotation and translation.
+    pub pose: Pose,
+}
+
+/// Least-squares similarity transform mapping `src` onto `dst` (Umeyama's
+/// closed form). `None` when fewer than 3 points or a degenerate spread.
+pub fn fit_similarity(src: &[Vec3], dst: &[Vec3]) -> Option<SimilarityFit> {
+    let n = src.len();
+    if n < 3 || n != dst.len() {
+        return None;
+    }
+    let nf = n as f64;
+    let mu_s = src.iter().sum::<Vec3>() / nf;
+    let mu_d = dst.iter().sum::<Vec3>() / nf;
+    let mut cov = Mat3::zeros();
+    let mut var_s = 0.0;
+    for (s, d) in src.iter().zip(dst) {
+        let (a, b) = (s - mu_s, d - mu_d);
+        cov += b * a.transpose();
+        var_s += a.norm_squared();
+    }
+    cov /= nf;
+    var_s /= nf;
+    if var_s <= f64::EPSILON {
+        return None;
+    }
+    let svd = cov.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut sign = Mat3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        sign[(2, 2)] = -1.0;
+    }
+    let rotation = u * sign * v_t;
+    let scale = (svd.singular_values.component_mul(&sign.diagonal())).sum() / var_s;
+    if !(scale.is_finite() && scale > 0.0) {
+        return None;
+    }
+    let translation_m = mu_d - scale * rotation * mu_s;
+    Some(SimilarityFit { scale, pose: Pose::new(rotation, translation_m) })
+}
+
+/// [`fit_similarity`], refitted once without points whose residual exceeds
+/// [`OUTLIER_MEDIAN_FACTOR`] times the median (depth noise and mask edges).
+pub fn fit_similarity_robust(src: &[Vec3], dst: &[Vec3]) -> Option<SimilarityFit> {
+    let fit = fit_similarity(src, dst)?;
+    let residual = |s: &Vec3, d: &Vec3| (fit.scale * fit.pose.rotation * s + fit.pose.translation_m - d).norm();
+    let mut res: Vec<f64> = src.iter().zip(dst).map(|(s, d)| residual(s, d)).collect();
+    let mut sorted = res.clone();
+    sorted.sort_by(f64::total_cmp);
+    let limit = OUTLIER_MEDIAN_FACTOR * sorted[sorted.len() / 2] + 1e-9;
+    let (mut s2, mut d2) = (Vec::new(), Vec::new());
+    for ((s, d), r) in src.iter().zip(dst).zip(res.drain(..)) {
+        if r <= limit {
+            s2.push(*s);
+            d2.push(*d);
+        }
+    }
+    fit_similarity(&s2, &d2).or(Some(fit))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -206,5 +275,24 @@ mod tests {
         let a = rotation_axis_angle(&Vec3::new(0.3, 1.0, -0.2), 0.4);
         let b = a * rotation_axis_angle(&Vec3::x(), 7f64.to_radians());
         assert!((rotation_angle_deg(&a, &b) - 7.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn similarity_fit_recovers_a_known_transform() {
+        let r = rotation_axis_angle(&Vec3::new(0.2, 1.0, -0.4), 1.1);
+        let t = Vec3::new(0.05, -0.1, 0.8);
+        let scale = 0.23;
+        let src: Vec<Vec3> = (0..50)
+            .map(|i| {
+                let f = i as f64;
+                Vec3::new((f * 0.37).sin() * 0.4, (f * 0.91).cos() * 0.3, ((f * 0.13).sin() - 0.5) * 0.2)
+            })
+            .collect();
+        let mut dst: Vec<Vec3> = src.iter().map(|p| scale * r * p + t).collect();
+        dst[3] += Vec3::new(0.5, 0.0, 0.0); // one gross outlier
+        let fit = fit_similarity_robust(&src, &dst).unwrap();
+        assert!((fit.scale - scale).abs() < 1e-9);
+        assert!((fit.pose.rotation - r).abs().max() < 1e-9);
+        assert!((fit.pose.translation_m - t).norm() < 1e-9);
     }
 }

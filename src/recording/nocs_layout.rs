@@ -14,7 +14,7 @@ use super::annotations::{FrameAnnotations, GtInstance};
 use crate::category::Category;
 use crate::error::{Error, Result};
 use crate::frame::{DEPTH_SCALE_MM, DepthImage, Intrinsics, LabelImage, NOCS_MAP_MAX, NocsMap, RgbdFrame};
-use crate::geometry::{Mat3, Pose, Vec3};
+use crate::geometry::{Vec3, fit_similarity_robust};
 use crate::image_io::{read_color_png, read_nocs_png, read_png};
 use std::path::{Path, PathBuf};
 
@@ -22,8 +22,6 @@ use std::path::{Path, PathBuf};
 pub const NOCS_MASK_BACKGROUND: u8 = 255;
 /// Fewest pixels with depth and NOCS coordinates needed to fit a pose.
 pub const MIN_FIT_PIXELS: usize = 16;
-/// Residuals above this multiple of the median are dropped before the refit.
-const OUTLIER_MEDIAN_FACTOR: f64 = 3.0;
 
 const COLOR_SUFFIX: &str = "_color.png";
 
@@ -202,42 +200,7 @@ impl Recording for NocsLayout {
         let mut mask = self.read_mask(index)?;
         let nocs = self.read_coord(index)?;
         let depth = self.read_depth(index)?;
-        let mut instances = Vec::new();
-        for &(id, class) in &meta {
-            let mut nocs_pts = Vec::new();
-            let mut cam_pts = Vec::new();
-            for v in 0..mask.height {
-                for u in 0..mask.width {
-                    if mask.label(u, v) != id {
-                        continue;
-                    }
-                    if let Some(z) = depth.depth_m(u, v) {
-                        let c = nocs.coord(u, v);
-                        nocs_pts.push(Vec3::new(c[0] - 0.5, c[1] - 0.5, c[2] - 0.5));
-                        cam_pts.push(self.intrinsics.backproject(f64::from(u), f64::from(v), z));
-                    }
-                }
-            }
-            if nocs_pts.len() < MIN_FIT_PIXELS {
-                log::warn!(
-                    "{}: instance {id} has {} pixels with depth, too few to recover its pose; skipped",
-                    self.path(index, "_mask.png").display(),
-                    nocs_pts.len()
-                );
-                continue;
-            }
-            let Some(fit) = fit_similarity_robust(&nocs_pts, &cam_pts) else {
-                continue;
-            };
-            let half = nocs_pts.iter().fold(Vec3::zeros(), |m, p| m.zip_map(&p.abs(), f64::max));
-            instances.push(GtInstance {
-                id,
-                class,
-                camera_from_object: fit.pose,
-                size_m: [2.0 * half.x * fit.scale, 2.0 * half.y * fit.scale, 2.0 * half.z * fit.scale],
-                handle_visible: true,
-            });
-        }
+        let instances = recover_instances(&meta, &mask, &nocs, &depth, &self.intrinsics);
         // Pixels of instances not in the meta file (distractors) are background.
         let known: Vec<u8> = meta.iter().map(|m| m.0).collect();
         mask.data.iter_mut().filter(|l| !known.contains(l)).for_each(|l| *l = 0);
@@ -245,92 +208,50 @@ impl Recording for NocsLayout {
     }
 }
 
-/// A similarity transform `y = scale * pose.rotation * x + pose.translation_m`.
-#[derive(Clone, Copy, Debug)]
-pub struct SimilarityFit {
-    /// Scale factor.
-    pub scale: f64,
-    /// Rotation and translation.
-    pub pose: Pose,
-}
-
-/// Least-squares similarity transform mapping `src` onto `dst` (Umeyama's
-/// closed form). `None` when fewer than 3 points or a degenerate spread.
-pub fn fit_similarity(src: &[Vec3], dst: &[Vec3]) -> Option<SimilarityFit> {
-    let n = src.len();
-    if n < 3 || n != dst.len() {
-        return None;
-    }
-    let nf = n as f64;
-    let mu_s = src.iter().sum::<Vec3>() / nf;
-    let mu_d = dst.iter().sum::<Vec3>() / nf;
-    let mut cov = Mat3::zeros();
-    let mut var_s = 0.0;
-    for (s, d) in src.iter().zip(dst) {
-        let (a, b) = (s - mu_s, d - mu_d);
-        cov += b * a.transpose();
-        var_s += a.norm_squared();
-    }
-    cov /= nf;
-    var_s /= nf;
-    if var_s <= f64::EPSILON {
-        return None;
-    }
-    let svd = cov.svd(true, true);
-    let (u, v_t) = (svd.u?, svd.v_t?);
-    let mut sign = Mat3::identity();
-    if (u * v_t).determinant() < 0.0 {
-        sign[(2, 2)] = -1.0;
-    }
-    let rotation = u * sign * v_t;
-    let scale = (svd.singular_values.component_mul(&sign.diagonal())).sum() / var_s;
-    if !(scale.is_finite() && scale > 0.0) {
-        return None;
-    }
-    let translation_m = mu_d - scale * rotation * mu_s;
-    Some(SimilarityFit { scale, pose: Pose::new(rotation, translation_m) })
-}
-
-/// [`fit_similarity`], refitted once without points whose residual exceeds
-/// three times the median (depth noise and mask edges).
-pub fn fit_similarity_robust(src: &[Vec3], dst: &[Vec3]) -> Option<SimilarityFit> {
-    let fit = fit_similarity(src, dst)?;
-    let residual = |s: &Vec3, d: &Vec3| (fit.scale * fit.pose.rotation * s + fit.pose.translation_m - d).norm();
-    let mut res: Vec<f64> = src.iter().zip(dst).map(|(s, d)| residual(s, d)).collect();
-    let mut sorted = res.clone();
-    sorted.sort_by(f64::total_cmp);
-    let limit = OUTLIER_MEDIAN_FACTOR * sorted[sorted.len() / 2] + 1e-9;
-    let (mut s2, mut d2) = (Vec::new(), Vec::new());
-    for ((s, d), r) in src.iter().zip(dst).zip(res.drain(..)) {
-        if r <= limit {
-            s2.push(*s);
-            d2.push(*d);
+/// Recovers the pose and size of each `(mask id, class)` instance from a NOCS
+/// map and a registered depth image: a robust similarity fit
+/// ([`fit_similarity_robust`]) of the NOCS coordinates (centred) onto the
+/// back-projected depth; the size is the symmetric extent of the observed NOCS
+/// coordinates times the fitted scale. Instances with fewer than
+/// [`MIN_FIT_PIXELS`] usable pixels are skipped (with a warning).
+pub fn recover_instances(
+    instances: &[(u8, Category)],
+    mask: &LabelImage,
+    nocs: &NocsMap,
+    depth: &DepthImage,
+    intrinsics: &Intrinsics,
+) -> Vec<GtInstance> {
+    let mut out = Vec::new();
+    for &(id, class) in instances {
+        let mut nocs_pts = Vec::new();
+        let mut cam_pts = Vec::new();
+        for v in 0..mask.height {
+            for u in 0..mask.width {
+                if mask.label(u, v) != id {
+                    continue;
+                }
+                if let Some(z) = depth.depth_m(u, v) {
+                    let c = nocs.coord(u, v);
+                    nocs_pts.push(Vec3::new(c[0] - 0.5, c[1] - 0.5, c[2] - 0.5));
+                    cam_pts.push(intrinsics.backproject(f64::from(u), f64::from(v), z));
+                }
+            }
         }
+        if nocs_pts.len() < MIN_FIT_PIXELS {
+            log::warn!("instance {id} has {} pixels with depth, too few to recover its pose; skipped", nocs_pts.len());
+            continue;
+        }
+        let Some(fit) = fit_similarity_robust(&nocs_pts, &cam_pts) else {
+            continue;
+        };
+        let half = nocs_pts.iter().fold(Vec3::zeros(), |m, p| m.zip_map(&p.abs(), f64::max));
+        out.push(GtInstance {
+            id,
+            class,
+            camera_from_object: fit.pose,
+            size_m: [2.0 * half.x * fit.scale, 2.0 * half.y * fit.scale, 2.0 * half.z * fit.scale],
+            handle_visible: true,
+        });
     }
-    fit_similarity(&s2, &d2).or(Some(fit))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::geometry::rotation_axis_angle;
-
-    #[test]
-    fn similarity_fit_recovers_a_known_transform() {
-        let r = rotation_axis_angle(&Vec3::new(0.2, 1.0, -0.4), 1.1);
-        let t = Vec3::new(0.05, -0.1, 0.8);
-        let scale = 0.23;
-        let src: Vec<Vec3> = (0..50)
-            .map(|i| {
-                let f = i as f64;
-                Vec3::new((f * 0.37).sin() * 0.4, (f * 0.91).cos() * 0.3, ((f * 0.13).sin() - 0.5) * 0.2)
-            })
-            .collect();
-        let mut dst: Vec<Vec3> = src.iter().map(|p| scale * r * p + t).collect();
-        dst[3] += Vec3::new(0.5, 0.0, 0.0); // one gross outlier
-        let fit = fit_similarity_robust(&src, &dst).unwrap();
-        assert!((fit.scale - scale).abs() < 1e-9);
-        assert!((fit.pose.rotation - r).abs().max() < 1e-9);
-        assert!((fit.pose.translation_m - t).norm() < 1e-9);
-    }
+    out
 }
