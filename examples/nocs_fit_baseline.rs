@@ -33,18 +33,8 @@ fn main() -> Result<()> {
             };
             let frame = rec.read_frame(i)?;
             let meta: Vec<_> = ann.instances.iter().map(|g| (g.id, g.class)).collect();
-            let fitted = recover_instances(&meta, mask, nocs, &frame.depth, &frame.intrinsics);
-            let instances = fitted
-                .into_iter()
-                .map(|g| PredInstance {
-                    class: g.class,
-                    score: 1.0,
-                    camera_from_object: g.camera_from_object,
-                    size_m: g.size_m,
-                    box2d: None,
-                    mask: None,
-                })
-                .collect();
+            let fitted = recover_instances(&meta, mask, nocs, &frame.depth, &frame.intrinsics)?;
+            let instances = fitted.iter().map(PredInstance::from_ground_truth).collect();
             Ok(to_json_line(&FramePredictions { frame: id.to_string(), timestamp_s: None, instances }))
         })
         .collect();

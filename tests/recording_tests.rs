@@ -245,6 +245,11 @@ fn nocs_layout_bad_meta_and_depth_are_clear_errors() {
     fs::write(dir.path().join("0000_meta.txt"), "3 9 spaceship\n").unwrap();
     assert!(err_text(rec.read_annotations(0).unwrap_err()).contains("class_id"));
 
+    fs::write(dir.path().join("0000_meta.txt"), "3 3 camera\n").unwrap();
+    write_label_png(&dir.path().join("0000_mask.png"), &LabelImage::new(320, 240)).unwrap();
+    let err = err_text(rec.read_annotations(0).unwrap_err());
+    assert!(err.contains("0000_mask.png") && err.contains("320x240"), "{err}");
+
     let depth8 = encode_png(640, 480, png::ColorType::Grayscale, png::BitDepth::Eight, &vec![1; 640 * 480]).unwrap();
     fs::write(dir.path().join("0000_depth.png"), depth8).unwrap();
     let err = err_text(rec.read_frame(0).unwrap_err());

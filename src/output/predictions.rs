@@ -11,6 +11,7 @@ use crate::atomic::write_atomic_with;
 use crate::category::Category;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
+use crate::recording::annotations::GtInstance;
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
@@ -49,6 +50,19 @@ pub struct FramePredictions {
 }
 
 impl PredInstance {
+    /// The prediction a perfect estimator would make for `gt` (score 1): the
+    /// oracle that `tricons inspect --predictions` prints.
+    pub fn from_ground_truth(gt: &GtInstance) -> PredInstance {
+        PredInstance {
+            class: gt.class,
+            score: 1.0,
+            camera_from_object: gt.camera_from_object,
+            size_m: gt.size_m,
+            box2d: None,
+            mask: None,
+        }
+    }
+
     fn validate(&self) -> std::result::Result<(), String> {
         if !(self.score.is_finite() && (0.0..=1.0).contains(&self.score)) {
             return Err(format!("field score: {} is not in [0, 1]", self.score));

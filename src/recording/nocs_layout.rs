@@ -200,7 +200,17 @@ impl Recording for NocsLayout {
         let mut mask = self.read_mask(index)?;
         let nocs = self.read_coord(index)?;
         let depth = self.read_depth(index)?;
-        let instances = recover_instances(&meta, &mask, &nocs, &depth, &self.intrinsics);
+        let size = (depth.width, depth.height);
+        for (suffix, w, h) in [("_mask.png", mask.width, mask.height), ("_coord.png", nocs.width, nocs.height)] {
+            if (w, h) != size {
+                return Err(Error::ImageFormat {
+                    path: self.path(index, suffix),
+                    expected: format!("the depth image's size {}x{}", size.0, size.1),
+                    found: format!("{w}x{h}"),
+                });
+            }
+        }
+        let instances = recover_instances(&meta, &mask, &nocs, &depth, &self.intrinsics)?;
         // Pixels of instances not in the meta file (distractors) are background.
         let known: Vec<u8> = meta.iter().map(|m| m.0).collect();
         mask.data.iter_mut().filter(|l| !known.contains(l)).for_each(|l| *l = 0);
@@ -213,14 +223,22 @@ impl Recording for NocsLayout {
 /// ([`fit_similarity_robust`]) of the NOCS coordinates (centred) onto the
 /// back-projected depth; the size is the symmetric extent of the observed NOCS
 /// coordinates times the fitted scale. Instances with fewer than
-/// [`MIN_FIT_PIXELS`] usable pixels are skipped (with a warning).
+/// [`MIN_FIT_PIXELS`] usable pixels are skipped (with a warning). The three
+/// images must have the same size.
 pub fn recover_instances(
     instances: &[(u8, Category)],
     mask: &LabelImage,
     nocs: &NocsMap,
     depth: &DepthImage,
     intrinsics: &Intrinsics,
-) -> Vec<GtInstance> {
+) -> Result<Vec<GtInstance>> {
+    let size = (depth.width, depth.height);
+    if (mask.width, mask.height) != size || (nocs.width, nocs.height) != size {
+        return Err(Error::InvalidArgument(format!(
+            "mask {}x{}, NOCS map {}x{} and depth {}x{} must have the same size",
+            mask.width, mask.height, nocs.width, nocs.height, size.0, size.1
+        )));
+    }
     let mut out = Vec::new();
     for &(id, class) in instances {
         let mut nocs_pts = Vec::new();
@@ -253,5 +271,5 @@ pub fn recover_instances(
             handle_visible: true,
         });
     }
-    out
+    Ok(out)
 }

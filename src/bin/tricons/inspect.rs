@@ -37,17 +37,7 @@ pub fn run(args: Args) -> Result<()> {
             let frame = FramePredictions {
                 frame: rec.frame_id(i).to_string(),
                 timestamp_s: None,
-                instances: instances
-                    .into_iter()
-                    .map(|g| PredInstance {
-                        class: g.class,
-                        score: 1.0,
-                        camera_from_object: g.camera_from_object,
-                        size_m: g.size_m,
-                        box2d: None,
-                        mask: None,
-                    })
-                    .collect(),
+                instances: instances.iter().map(PredInstance::from_ground_truth).collect(),
             };
             writeln!(out, "{}", to_json_line(&frame))?;
         }
