@@ -5,8 +5,22 @@ use std::fs;
 use std::path::Path;
 use std::process::{Command, Output};
 
+/// The binary under test. `TRICONS_TEST_RUNNER` (e.g. `qemu-aarch64-static -L
+/// /usr/aarch64-linux-gnu`, set by cross/check.sh) prefixes it where the host
+/// cannot execute it directly.
 fn tricons(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tricons")).args(args).env("RUST_LOG", "warn").output().unwrap()
+    let exe = env!("CARGO_BIN_EXE_tricons");
+    let runner = std::env::var("TRICONS_TEST_RUNNER").unwrap_or_default();
+    let mut parts = runner.split_whitespace();
+    let mut cmd = match parts.next() {
+        Some(program) => {
+            let mut c = Command::new(program);
+            c.args(parts).arg(exe);
+            c
+        }
+        None => Command::new(exe),
+    };
+    cmd.args(args).env("RUST_LOG", "warn").output().unwrap()
 }
 
 fn stderr(o: &Output) -> String {

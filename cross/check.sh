@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Verifies the ARM builds on a machine without Docker: Debian's cross linkers
+# and qemu-user run the release build and the full Rust test suite for
+# aarch64-unknown-linux-gnu and armv7-unknown-linux-gnueabihf.
+#
+# Usage: cross/check.sh [aarch64] [armv7]      (default: both)
+#        CHECK_SKIP_RELEASE=1 cross/check.sh aarch64   (tests only)
+#
+# Installs what is missing (apt packages as root, rustup targets for the
+# toolchain pinned in rust-toolchain.toml). Prints binary sizes and an
+# indicative cold-start time under qemu.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+wanted=("$@")
+[ ${#wanted[@]} -gt 0 ] || wanted=(aarch64 armv7)
+
+declare -A TRIPLE=([aarch64]=aarch64-unknown-linux-gnu [armv7]=armv7-unknown-linux-gnueabihf)
+declare -A GCC=([aarch64]=aarch64-linux-gnu-gcc [armv7]=arm-linux-gnueabihf-gcc)
+declare -A QEMU=([aarch64]=qemu-aarch64-static [armv7]=qemu-arm-static)
+declare -A SYSROOT=([aarch64]=/usr/aarch64-linux-gnu [armv7]=/usr/arm-linux-gnueabihf)
+declare -A APT=([aarch64]="gcc-aarch64-linux-gnu libc6-dev-arm64-cross" [armv7]="gcc-arm-linux-gnueabihf libc6-dev-armhf-cross")
+
+missing=()
+for arch in "${wanted[@]}"; do
+    [ -n "${TRIPLE[$arch]:-}" ] || { echo "unknown target '$arch' (aarch64 or armv7)" >&2; exit 2; }
+    command -v "${GCC[$arch]}" >/dev/null || missing+=(${APT[$arch]})
+    command -v "${QEMU[$arch]}" >/dev/null || missing+=(qemu-user-static)
+done
+if [ ${#missing[@]} -gt 0 ]; then
+    echo "== installing ${missing[*]}"
+    sudo_cmd=()
+    [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+    "${sudo_cmd[@]}" apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+installed=$(rustup target list --installed)
+for arch in "${wanted[@]}"; do
+    grep -qx "${TRIPLE[$arch]}" <<<"$installed" || rustup target add "${TRIPLE[$arch]}"
+done
+
+for arch in "${wanted[@]}"; do
+    triple=${TRIPLE[$arch]}
+    env_triple=$(tr 'a-z-' 'A-Z_' <<<"$triple")
+    runner="${QEMU[$arch]} -L ${SYSROOT[$arch]}"
+    export "CARGO_TARGET_${env_triple}_LINKER=${GCC[$arch]}"
+    export "CARGO_TARGET_${env_triple}_RUNNER=$runner"
+    # The CLI tests spawn the tricons binary; without binfmt it needs qemu too.
+    export TRICONS_TEST_RUNNER="$runner"
+
+    if [ -z "${CHECK_SKIP_RELEASE:-}" ]; then
+        echo "== $triple: release build"
+        cargo build --release --locked --target "$triple" --bin tricons
+        bin=target/$triple/release/tricons
+        size=$(stat -c %s "$bin")
+        echo "$triple: binary $bin is $((size / 1024)) KiB ($(file -b "$bin" | cut -d, -f1-2))"
+        tmp=$(mktemp -d)
+        start=$(date +%s.%N)
+        $runner "$bin" synth --out "$tmp/rec" --frames 1 --seed 1 >/dev/null 2>&1
+        $runner "$bin" inspect "$tmp/rec" --predictions >"$tmp/gt.jsonl"
+        $runner "$bin" eval --gt "$tmp/rec" --pred "$tmp/gt.jsonl" --json "$tmp/r.json" >/dev/null
+        end=$(date +%s.%N)
+        echo "$triple: cold start under qemu (synth 1 frame + inspect + eval): $(echo "$end - $start" | bc) s (qemu timing is indicative only)"
+        rm -rf "$tmp"
+    fi
+
+    echo "== $triple: test suite under ${QEMU[$arch]}"
+    cargo test --locked --target "$triple"
+done
