@@ -431,7 +431,12 @@ CASES = [
         "classes_without_gt",
         110,
         "no laptop/camera GT; laptop predictions exist (reference NaN), camera neither (reference 0)",
-        {"classes": ["bottle", "bowl", "can", "mug"], "fp_classes": ["laptop", "bottle", "mug"], "false_positives": (1, 3), "p_wrong_class": 0.0},
+        {
+            "classes": ["bottle", "bowl", "can", "mug"],
+            "fp_classes": ["laptop", "bottle", "mug"],
+            "false_positives": (1, 3),
+            "p_wrong_class": 0.0,
+        },
     ),
     (
         "crowded_same_class",
@@ -486,7 +491,8 @@ def close_calls(ns, frames):
                 hv = 1 if (g["handle_visible"] or g["class"] != "mug") else 0
                 with contextlib.redirect_stdout(io.StringIO()), np.errstate(invalid="ignore", divide="ignore"):
                     iou = ns["compute_3d_iou_new"](prt, grt, ps, gs, hv, p["class"], g["class"])
-                    deg, cm = ns["compute_RT_degree_cm_symmetry"](prt, grt, SYNSET_NAMES.index(g["class"]), hv, SYNSET_NAMES)
+                    class_id = SYNSET_NAMES.index(g["class"])
+                    deg, cm = ns["compute_RT_degree_cm_symmetry"](prt, grt, class_id, hv, SYNSET_NAMES)
                 if not np.isfinite(iou) or any(abs(iou - t) < IOU_MARGIN for t in IOU_THRESHOLDS):
                     problems.append((fi, pi, f"IoU {iou}"))
                 if not (np.isfinite(deg) and np.isfinite(cm)):
