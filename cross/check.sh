@@ -3,8 +3,8 @@
 # and qemu-user run the release build and the full Rust test suite for
 # aarch64-unknown-linux-gnu and armv7-unknown-linux-gnueabihf.
 #
-# Usage: cross/check.sh [aarch64] [armv7]      (default: both)
-#        CHECK_SKIP_RELEASE=1 cross/check.sh aarch64   (tests only)
+# Usage: cross/check.sh [--tests-only] [aarch64] [armv7]   (default: both targets)
+#   --tests-only   skip the release build and the cold-start run
 #
 # Installs what is missing (apt packages as root, rustup targets for the
 # toolchain pinned in rust-toolchain.toml). Prints binary sizes and an
@@ -12,7 +12,15 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-wanted=("$@")
+tests_only=""
+wanted=()
+for arg in "$@"; do
+    case "$arg" in
+        --tests-only) tests_only=1 ;;
+        -h | --help) sed -n '2,12p' "$0"; exit 0 ;;
+        *) wanted+=("$arg") ;;
+    esac
+done
 [ ${#wanted[@]} -gt 0 ] || wanted=(aarch64 armv7)
 
 declare -A TRIPLE=([aarch64]=aarch64-unknown-linux-gnu [armv7]=armv7-unknown-linux-gnueabihf)
@@ -49,19 +57,19 @@ for arch in "${wanted[@]}"; do
     # The CLI tests spawn the tricons binary; without binfmt it needs qemu too.
     export TRICONS_TEST_RUNNER="$runner"
 
-    if [ -z "${CHECK_SKIP_RELEASE:-}" ]; then
+    if [ -z "$tests_only" ]; then
         echo "== $triple: release build"
         cargo build --release --locked --target "$triple" --bin tricons
         bin=target/$triple/release/tricons
         size=$(stat -c %s "$bin")
-        echo "$triple: binary $bin is $((size / 1024)) KiB ($(file -b "$bin" | cut -d, -f1-2))"
+        echo "$triple: binary $bin is $((size / 1024)) KiB"
         tmp=$(mktemp -d)
-        start=$(date +%s.%N)
+        start=$(date +%s%N)
         $runner "$bin" synth --out "$tmp/rec" --frames 1 --seed 1 >/dev/null 2>&1
         $runner "$bin" inspect "$tmp/rec" --predictions >"$tmp/gt.jsonl"
         $runner "$bin" eval --gt "$tmp/rec" --pred "$tmp/gt.jsonl" --json "$tmp/r.json" >/dev/null
-        end=$(date +%s.%N)
-        echo "$triple: cold start under qemu (synth 1 frame + inspect + eval): $(echo "$end - $start" | bc) s (qemu timing is indicative only)"
+        end=$(date +%s%N)
+        echo "$triple: cold start under qemu (synth 1 frame + inspect + eval): $(((end - start) / 1000000)) ms (qemu timing is indicative only)"
         rm -rf "$tmp"
     fi
 
