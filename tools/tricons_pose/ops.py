@@ -401,6 +401,11 @@ def triangle_descriptor_torch(query: Tensor, points: Tensor, knn_idx: Tensor) ->
         phi (B, M, K(K-1)/2, 3), see :func:`triangle_descriptor`.
     """
     B, M, K = knn_idx.shape
+    out_dtype = query.dtype
+    # geometry in float64: acos near +-1 is ill-conditioned (coincident / collinear
+    # points are common), float32 arithmetic would cost ~1e-4 rad there.
+    query = query.to(torch.float64)
+    points = points.to(torch.float64)
     ia, ib = _pair_indices(K, query.device)
     nb = torch.gather(points, 1, knn_idx.reshape(B, M * K, 1).expand(B, M * K, 3)).reshape(B, M, K, 3)
     qa = nb[:, :, ia]  # (B, M, T, 3)
@@ -419,7 +424,7 @@ def triangle_descriptor_torch(query: Tensor, points: Tensor, knn_idx: Tensor) ->
     area_soft = 0.5 * torch.sqrt(c2 + TRIANGLE_NORM_EPS2 * TRIANGLE_NORM_EPS2)  # finite gradient
     area = area_soft + (area - area_soft).detach()
     w = torch.softmax(area, dim=-1)
-    return w.unsqueeze(-1) * torch.stack([alpha, beta, gamma], dim=-1)
+    return (w.unsqueeze(-1) * torch.stack([alpha, beta, gamma], dim=-1)).to(out_dtype)
 
 
 @torch.library.custom_op("tricons::triangle_descriptor", mutates_args=())
@@ -473,6 +478,8 @@ def triangle_descriptor(query: Tensor, points: Tensor, k: int) -> tuple[Tensor, 
     ``acos(clip(dot(u, v) / (|u|_e |v|_e), -1, 1))`` with
     ``|u|_e = sqrt(u.u + TRIANGLE_NORM_EPS2)``; area A = |(q_a-p_i) x (q_b-p_i)| / 2;
     w = softmax of A over the k(k-1)/2 triangles; phi = w * [alpha, beta, gamma].
+    The kNN uses squared distances in the input dtype; the geometry (angles,
+    areas, softmax) is evaluated in float64 and phi cast back to the input dtype.
 
     Args:
         query: (B, M, 3) float32 or float64.
