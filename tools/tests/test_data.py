@@ -257,8 +257,10 @@ def test_small_instances_are_replaced_by_the_next(recording):
     assert int(ds[0]["index"]) == 1 and 0 in ds.skipped
 
 
-def test_augmentation_round_trip_and_view_targets(recording):
-    ds = D.InstanceDataset([recording], n_points=256, crop_size=32, seed=1, augment=D.AugmentConfig())
+@pytest.mark.parametrize("axes", ["camera", "object"])
+def test_augmentation_round_trip_and_view_targets(recording, axes):
+    aug = D.AugmentConfig(scale_axes=axes, isotropic_views=(0,) if axes == "camera" else ())
+    ds = D.InstanceDataset([recording], n_points=256, crop_size=32, seed=1, augment=aug)
     for i in range(len(ds)):
         s = ds[i]
         x = s["pts"].double()
@@ -270,6 +272,18 @@ def test_augmentation_round_trip_and_view_targets(recording):
             np.testing.assert_allclose(dR.T @ dR, np.eye(3), atol=1e-6)
             e = s["aug_scale"][v].double()
             assert torch.all((e >= 0.8) & (e <= 1.2))
+            ang = torch.arccos(((torch.trace(dR) - 1) / 2).clamp(-1, 1))
+            assert 0 < float(ang) <= np.deg2rad(20 * 3 ** 0.5)
+            if axes == "camera":
+                np.testing.assert_allclose(dS.numpy(), torch.diag(e).numpy(), atol=1e-7)
+                # the model's centred convention (forward_train) gives the same points
+                c = x.mean(0)
+                model_view = e * ((x - c) @ dR.T) + s["aug_dt"][v].double()
+                assert (model_view + c - y).abs().max() < 1e-6
+                if v == 0:
+                    assert float(e.max() - e.min()) == 0.0
+                assert "aug_gt_R" not in s
+                continue
             # the view's targets are exact: A (R p + t) + dT == R_v (e * p) + t_v
             p = torch.randn(5, 3, dtype=torch.float64) * 0.05
             lhs = ((s["R"].double() @ p.T).T + s["t"].double()) @ (dS @ dR).T + dT
@@ -279,9 +293,6 @@ def test_augmentation_round_trip_and_view_targets(recording):
             # view NOCS consistent with view points and view pose, as for the original
             obj = (y - s["aug_gt_t"][v].double()) @ s["aug_gt_R"][v].double() / s["aug_gt_s"][v].double().norm()
             assert (obj - s["aug_nocs"][v].double()).abs().max(dim=1).values.median() < 0.02
-            # rotation angles in [0, 20] degrees about each axis: total angle <= 20 * sqrt(3)
-            ang = torch.arccos(((torch.trace(dR) - 1) / 2).clamp(-1, 1))
-            assert 0 < float(ang) <= np.deg2rad(20 * 3 ** 0.5)
         assert not torch.equal(s["aug_R"][0], s["aug_R"][1])
 
 
@@ -291,6 +302,7 @@ def test_dataloader_collate_and_split(recording, tmp_path):
     inputs, aug, targets = D.split_batch(batch)
     assert inputs["rgb"].shape == (3, 3, 32, 32) and inputs["pts"].shape == (3, 64, 3)
     assert aug["pts"].shape == (3, 2, 64, 3) and aug["R"].shape == (3, 2, 3, 3) and aug["S"].shape == (3, 2, 3, 3)
+    assert aug["dR"].shape == (3, 2, 3, 3) and aug["dS"].shape == (3, 2, 3) and aug["dT"].shape == (3, 2, 3)
     assert targets["class_id"].shape == (3,)
     assert list((tmp_path / "c").glob("*.npz"))
     # a fresh dataset reads the disk cache and gives identical samples

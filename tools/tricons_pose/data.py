@@ -210,37 +210,59 @@ def euler_xyz(ax: float, ay: float, az: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    """Paper's 3D augmentation (per view) and AG-Pose's colour jitter."""
+    """Paper's 3D augmentation (per view) and AG-Pose's colour jitter.
 
-    translation_m: float = 0.02  # dT ~ U(-0.02, 0.02) per axis
-    scale_range: tuple[float, float] = (0.8, 1.2)  # per object axis
-    max_angle_deg: float = 20.0  # angle ~ U(0, 20) about x, y, z
+    Per view: translation dt ~ U(-0.02, 0.02) m per axis, scale factors
+    e ~ U(0.8, 1.2) per axis (views in ``isotropic_views`` use e[0] for all
+    three), angles ~ U(0, 20) degrees about x, y, z composed as dR = Rx Ry Rz,
+    all about the centroid c of the sampled points:
+    ``y = dS dR (x - c) + c + dt``. ``scale_axes="camera"``: dS = diag(e) in
+    camera axes (the paper's P^v = dS dR P + dT, the model's convention).
+    ``scale_axes="object"``: dS scales along the object's own axes (needs the
+    ground-truth R; keeps the view's pose, size and NOCS targets exact, which
+    the sample then carries as ``aug_gt_*``).
+    """
+
+    translation_m: float = 0.02
+    scale_range: tuple[float, float] = (0.8, 1.2)
+    angle_range_deg: tuple[float, float] = (0.0, 20.0)
     n_views: int = 2
+    isotropic_views: tuple[int, ...] = ()
+    scale_axes: str = "camera"  # "camera" | "object"
     color_jitter: bool = True
     brightness: float = 0.2
     contrast: float = 0.2
     saturation: float = 0.2
     hue: float = 0.05
 
+    def __post_init__(self):
+        if self.scale_axes not in ("camera", "object"):
+            raise ValueError(f"scale_axes must be 'camera' or 'object', got {self.scale_axes!r}")
 
-def draw_view(rng: np.random.Generator, cfg: AugmentConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Draw one view's (translation (3,), scale factors (3,), rotation (3, 3)) in that order."""
+
+def draw_view(rng: np.random.Generator, cfg: AugmentConfig, isotropic: bool = False):
+    """Draw one view's (translation (3,), scale factors (3,), rotation (3, 3)), in that order (9 uniforms)."""
     dt = rng.uniform(-cfg.translation_m, cfg.translation_m, 3)
     e = rng.uniform(cfg.scale_range[0], cfg.scale_range[1], 3)
-    ang = np.deg2rad(rng.uniform(0.0, cfg.max_angle_deg, 3))
+    if isotropic:
+        e = np.full(3, e[0])
+    ang = np.deg2rad(rng.uniform(cfg.angle_range_deg[0], cfg.angle_range_deg[1], 3))
     return dt, e, euler_xyz(*ang)
 
 
-def view_transform(R: np.ndarray, centroid: np.ndarray, dt: np.ndarray, e: np.ndarray, dR: np.ndarray):
+def view_transform(R: np.ndarray | None, centroid: np.ndarray, dt: np.ndarray, e: np.ndarray, dR: np.ndarray):
     """The view's affine map y = dS @ dR @ x + dT, returned as (dR, dS, dT) (float64).
 
-    Geometrically: scale by e along the object's own axes (R's columns) and rotate
-    by dR, both about the centroid c of the sampled points, then translate by dt:
-    y = dR R diag(e) R^T (x - c) + c + dt. With R' = dR R, dS = R' diag(e) R'^T
-    (symmetric) and dT = c + dt - dS dR c. Inverse: x = dR^T dS^-1 (y - dT).
+    ``y = dS dR (x - c) + c + dt`` with dS = diag(e) (``R`` None: camera axes)
+    or dS = R' diag(e) R'^T with R' = dR R (scale along the object's axes; then
+    dS dR = dR R diag(e) R^T). dT = c + dt - dS dR c. Inverse:
+    x = dR^T dS^-1 (y - dT).
     """
-    Rv = dR @ R
-    dS = Rv @ np.diag(e) @ Rv.T
+    if R is None:
+        dS = np.diag(e)
+    else:
+        Rv = dR @ R
+        dS = Rv @ np.diag(e) @ Rv.T
     dT = centroid + dt - dS @ dR @ centroid
     return dR, dS, dT
 
@@ -286,11 +308,14 @@ def make_sample(
     minus 0.5; zeros without a NOCS map), ``R`` (3, 3), ``t`` (3,), ``s`` (3,),
     ``class_id`` int64 (0-based), ``handle_visible`` bool, ``sym`` bool
     (rotational symmetry about y: bottle/bowl/can, mug with hidden handle).
-    With ``augment``: ``aug_R`` (V, 3, 3), ``aug_S`` (V, 3, 3), ``aug_T`` (V, 3)
-    with view points ``aug_pts[v] = aug_S[v] @ aug_R[v] @ pts + aug_T[v]``
-    (V, N, 3); the exact targets of each view ``aug_gt_R`` (V, 3, 3),
-    ``aug_gt_t`` (V, 3), ``aug_gt_s`` (V, 3), ``aug_nocs`` (V, N, 3); and
-    ``aug_scale`` (V, 3) (the factors along the object axes).
+    With ``augment`` (see :class:`AugmentConfig`): ``aug_R`` (V, 3, 3),
+    ``aug_S`` (V, 3, 3), ``aug_T`` (V, 3) with view points
+    ``aug_pts[v] = aug_S[v] @ aug_R[v] @ pts + aug_T[v]`` (V, N, 3), the
+    drawn factors ``aug_scale`` (V, 3) and translation ``aug_dt`` (V, 3) (the
+    model's centred convention: P^v = aug_scale * (aug_R P) + aug_dt with
+    P = pts - centroid, camera axes); with ``scale_axes="object"`` also the
+    exact view targets ``aug_gt_R`` (V, 3, 3), ``aug_gt_t`` (V, 3),
+    ``aug_gt_s`` (V, 3), ``aug_nocs`` (V, N, 3).
     """
     inst = prep.instance
     idx = sample_indices(prep.n_valid, n_points, rng)
@@ -318,20 +343,22 @@ def make_sample(
     if augment is not None:
         x = pts64.astype(np.float64)
         c = x.mean(axis=0)
-        diag = np.linalg.norm(inst.s)
-        nocs_c = nocs.astype(np.float64) * diag  # metric object-frame coordinates
-        keys = ("aug_R", "aug_S", "aug_T", "aug_pts", "aug_gt_R", "aug_gt_t", "aug_gt_s", "aug_nocs", "aug_scale")
+        obj = augment.scale_axes == "object"
+        keys = ["aug_R", "aug_S", "aug_T", "aug_pts", "aug_scale", "aug_dt"]
+        if obj:
+            keys += ["aug_gt_R", "aug_gt_t", "aug_gt_s", "aug_nocs"]
         acc = {k: [] for k in keys}
-        for _ in range(augment.n_views):
-            dt, e, rot = draw_view(rng, augment)
-            dR, dS, dT = view_transform(inst.R, c, dt, e, rot)
+        p_obj = nocs.astype(np.float64) * np.linalg.norm(inst.s)  # metric object-frame coordinates
+        for v in range(augment.n_views):
+            dt, e, rot = draw_view(rng, augment, v in augment.isotropic_views)
+            dR, dS, dT = view_transform(inst.R if obj else None, c, dt, e, rot)
             A = dS @ dR
-            s_v = inst.s * e
-            for k, v in zip(
-                keys,
-                (dR, dS, dT, x @ A.T + dT, dR @ inst.R, A @ inst.t + dT, s_v, nocs_c * e / np.linalg.norm(s_v), e),
-            ):
-                acc[k].append(v)
+            vals = [dR, dS, dT, x @ A.T + dT, e, dt]
+            if obj:
+                s_v = inst.s * e
+                vals += [dR @ inst.R, A @ inst.t + dT, s_v, p_obj * e / np.linalg.norm(s_v)]
+            for k, val in zip(keys, vals):
+                acc[k].append(val)
         for k in keys:
             out[k] = torch.from_numpy(np.stack(acc[k]).astype(np.float32))
     return out
@@ -516,13 +543,16 @@ class InstanceDataset(Dataset):
 def split_batch(batch: dict) -> tuple[dict, dict | None, dict]:
     """Split a collated batch into (inputs, aug, targets) for ``forward_train(inputs, aug)``.
 
-    inputs: rgb, pts, choose. aug (None without augmentation): R, S, T, pts,
-    gt_R, gt_t, gt_s, nocs, scale (the ``aug_`` keys without the prefix, each
-    with a leading view axis after the batch axis: (B, V, ...)). targets: R, t,
-    s, nocs, class_id, handle_visible, sym.
+    inputs: rgb, pts, choose. aug (None without augmentation): the ``aug_``
+    keys without the prefix ((B, V, ...) each), plus the model's
+    ``forward_train`` keys ``dR`` = R, ``dS`` = scale, ``dT`` = dt (centred
+    cloud, camera axes; meaningful for ``scale_axes="camera"``). targets: R,
+    t, s, nocs, class_id, handle_visible, sym.
     """
     inputs = {k: batch[k] for k in ("rgb", "pts", "choose")}
     aug = {k[4:]: v for k, v in batch.items() if k.startswith("aug_")} or None
+    if aug is not None:
+        aug.update(dR=aug["R"], dS=aug["scale"], dT=aug["dt"])
     targets = {k: batch[k] for k in ("R", "t", "s", "nocs", "class_id", "handle_visible", "sym")}
     return inputs, aug, targets
 
