@@ -1,0 +1,132 @@
+"""Losses of TriCons-Pose: AG-Pose's supervision plus the cross-view structural
+consistency loss L_cvc of SCKD.
+
+L = w_pose L_pose + w_nocs L_nocs + w_cd L_cd + w_div L_div + w_rec L_rec
+    + w_delta L_delta + w_cvc L_cvc      (weights from :class:`ModelConfig`).
+
+:func:`compute_losses` returns every term unweighted (for logging) plus "total".
+"""
+from __future__ import annotations
+
+from typing import Dict, Optional
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from .config import ModelConfig
+from .model import invert_view_transform
+
+
+def _dist(a: Tensor, b: Tensor) -> Tensor:
+    """Pairwise Euclidean distances (B, n, m) with a finite gradient at 0."""
+    d2 = ((a.unsqueeze(2) - b.unsqueeze(1)) ** 2).sum(-1)
+    return torch.sqrt(d2.clamp(min=1e-12))
+
+
+def pose_loss(R: Tensor, t: Tensor, s: Tensor, R_gt: Tensor, t_gt: Tensor, s_gt: Tensor) -> Tensor:
+    """AG-Pose PoseDis: mean column-wise L2 of R - R_gt + mean |t - t_gt| + mean |s - s_gt|."""
+    return (torch.linalg.vector_norm(R - R_gt, dim=1).mean()
+            + torch.linalg.vector_norm(t - t_gt, dim=-1).mean()
+            + torch.linalg.vector_norm(s - s_gt, dim=-1).mean())
+
+
+def smooth_l1_dis(a: Tensor, b: Tensor, beta: float = 0.1) -> Tensor:
+    """AG-Pose SmoothL1Dis: SmoothL1 (beta) per coordinate, summed over xyz, mean over
+    keypoints and batch."""
+    return F.smooth_l1_loss(a, b, beta=beta, reduction="none").sum(-1).mean()
+
+
+def nocs_target_from_heatmap(heatmap: Tensor, point_nocs: Tensor) -> Tensor:
+    """NOCS of each keypoint as the heatmap-weighted mean of the points' ground-truth
+    NOCS: (B, M, N) @ (B, N, 3) -> (B, M, 3)."""
+    return heatmap @ point_nocs
+
+
+def nocs_target_from_pose(kpt: Tensor, R: Tensor, t: Tensor, s: Tensor) -> Tensor:
+    """AG-Pose's keypoint NOCS target from the GT pose: R^T (kpt - t) / |s|."""
+    return ((kpt - t.unsqueeze(1)) / (torch.linalg.vector_norm(s, dim=-1)[:, None, None] + 1e-8)) @ R
+
+
+def keypoint_surface_loss(kpt: Tensor, pts: Tensor) -> Tensor:
+    """L_cd as AG-Pose (cd_dis_k2p): mean over keypoints of the distance to the nearest
+    observed point (pulls keypoints onto the object surface)."""
+    return _dist(kpt, pts).amin(dim=2).mean()
+
+
+def chamfer(a: Tensor, b: Tensor) -> Tensor:
+    """Symmetric Chamfer distance 0.5 mean_a min_b |a-b| + 0.5 mean_b min_a |a-b|."""
+    d = _dist(a, b)
+    return 0.5 * d.amin(dim=2).mean() + 0.5 * d.amin(dim=1).mean()
+
+
+def diversity_loss(kpt: Tensor, threshold: float = 0.01) -> Tensor:
+    """L_div (AG-Pose): mean over ordered keypoint pairs i != j of max(0, 1 - d_ij / th);
+    pairs closer than ``threshold`` metres are penalised, linearly up to 1 at d = 0."""
+    B, M, _ = kpt.shape
+    d = _dist(kpt, kpt)
+    pen = F.relu(1.0 - d / threshold)
+    off = 1.0 - torch.eye(M, dtype=kpt.dtype, device=kpt.device)
+    return (pen * off).sum(dim=(1, 2)).mean() / (M * (M - 1))
+
+
+def normalised_distance_matrix(kpt: Tensor, eps: float = 1e-6) -> Tensor:
+    """D / (mean(D) + eps) with D = cdist(kpt, kpt) (B, M, M); the mean runs over all
+    M*M entries of each instance's matrix (paper Eq. for D-bar)."""
+    D = torch.cdist(kpt, kpt)
+    return D / (D.mean(dim=(1, 2), keepdim=True) + eps)
+
+
+def cvc_loss(kpt_views: Tensor, dR: Tensor, dT: Tensor, dS: Tensor, eps: float = 1e-6,
+             beta: float = 1.0) -> Tensor:
+    """Cross-view structural consistency L_cvc (paper, SCKD).
+
+    Args:
+        kpt_views: (B, 2, M, 3) keypoints predicted in each augmented view's frame.
+        dR (B, 2, 3, 3), dT (B, 2, 3), dS (B, 2, 3) or (B, 2, 1): the view transforms
+            P^v = dS_v dR_v P + dT_v.
+    Each view is mapped back, P~^v = dR_v^-1 dS_v^-1 (P^v_kp - dT_v); D^v = cdist;
+    D-bar^v = D^v / (mean(D^v) + eps); L = SmoothL1(D-bar^1, D-bar^2) (mean over
+    entries and batch, ``beta`` = torch's default 1.0).
+    """
+    if dS.shape[-1] == 1:
+        dS = dS.expand(-1, -1, 3)
+    back = [invert_view_transform(kpt_views[:, v], dR[:, v], dT[:, v], dS[:, v]) for v in range(2)]
+    D1 = normalised_distance_matrix(back[0], eps)
+    D2 = normalised_distance_matrix(back[1], eps)
+    return F.smooth_l1_loss(D1, D2, beta=beta)
+
+
+def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
+                   cfg: ModelConfig) -> Dict[str, Tensor]:
+    """All losses from :meth:`TriConsPose.forward_train` outputs.
+
+    ``targets``: "R" (B,3,3), "t" (B,3), "s" (B,3) metres, camera frame; optional
+    "nocs" (B,N,3): ground-truth NOCS of the input points, centred (NOCS map - 0.5,
+    i.e. p_obj / |s| in [-0.5, 0.5]). With "nocs" the keypoint target is
+    heatmap @ nocs; without, AG-Pose's pose-derived target.
+
+    Returns unweighted "pose", "nocs", "cd", "div", "rec", "delta", "cvc" (0 when
+    use_sckd_loss is off) and the weighted sum "total".
+    """
+    pts = out["pts"]
+    L: Dict[str, Tensor] = {}
+    L["pose"] = pose_loss(out["R"], out["t"], out["s"], targets["R"], targets["t"], targets["s"])
+    if "nocs" in targets and targets["nocs"] is not None:
+        tgt = nocs_target_from_heatmap(out["heatmap"], targets["nocs"])
+    else:
+        tgt = nocs_target_from_pose(out["kpt_3d"], targets["R"], targets["t"], targets["s"])
+    L["nocs"] = smooth_l1_dis(out["kpt_nocs"], tgt, cfg.nocs_beta)
+    L["cd"] = keypoint_surface_loss(out["kpt_3d"], pts)
+    L["div"] = diversity_loss(out["kpt_3d"], cfg.div_threshold)
+    L["rec"] = chamfer(pts, out["recon"])
+    L["delta"] = torch.linalg.vector_norm(out["recon_delta"], dim=-1).mean()
+    if cfg.use_sckd_loss:
+        L["cvc"] = cvc_loss(out["kpt_views"], out["dR"], out["dT"], out["dS"], cfg.cvc_eps,
+                            cfg.cvc_beta)
+    else:
+        L["cvc"] = pts.new_zeros(())
+    L["total"] = (cfg.w_pose * L["pose"] + cfg.w_nocs * L["nocs"] + cfg.w_cd * L["cd"]
+                  + cfg.w_div * L["div"] + cfg.w_rec * L["rec"] + cfg.w_delta * L["delta"]
+                  + cfg.w_cvc * L["cvc"])
+    return L
