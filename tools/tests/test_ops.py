@@ -304,3 +304,55 @@ def test_opcheck():
     ]
     for op, args in cases:
         torch.library.opcheck(op, args, test_utils=("test_schema", "test_faketensor", "test_autograd_registration"))
+
+
+# ----------------------------------------------------------------- many exact ties (integer grid)
+
+def _grid(B, N, seed, levels=3):
+    g = torch.Generator().manual_seed(seed)
+    return torch.randint(0, levels, (B, N, 3), generator=g).float() * 0.25
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_tie_heavy_inputs_match_reference(seed):
+    x = _grid(2, 30, seed)
+    c = _grid(2, 9, seed + 100)
+    np.testing.assert_array_equal(ops.furthest_point_sample(x, 12).numpy(), ref.furthest_point_sample(x.numpy(), 12))
+    np.testing.assert_array_equal(ops.ball_query(x, c, 0.3, 5).numpy(), ref.ball_query(x.numpy(), c.numpy(), 0.3, 5))
+    d, i = ops.three_nn(c, x)
+    rd, ri = ref.three_nn(c.numpy(), x.numpy())
+    np.testing.assert_array_equal(i.numpy(), ri)
+    np.testing.assert_allclose(d.numpy(), rd, atol=1e-6, rtol=0)
+    for k in (3, 6):
+        phi, idx = ops.triangle_descriptor(c, x, k)
+        rphi, ridx = ref.triangle_descriptor(c.numpy(), x.numpy(), k)
+        np.testing.assert_array_equal(idx.numpy(), ridx)
+        np.testing.assert_allclose(phi.numpy(), rphi, atol=1e-6, rtol=0)
+
+
+def test_knn_ties_inside_the_cut_fast_path():
+    # ties among the k picked but not across the k-th distance: the topk fast path must
+    # still order them by index
+    known = torch.tensor([[[2, 0, 0], [0, 0, 1], [0, 0, 0], [0, 1, 0], [5, 5, 5], [1, 0, 0]]], dtype=torch.float32)
+    unknown = torch.zeros(1, 1, 3)
+    d2, idx = ops._knn_sorted(unknown, known, 4)
+    assert idx.tolist() == [[[2, 1, 3, 5]]]
+    assert d2.tolist() == [[[0.0, 1.0, 1.0, 1.0]]]
+    _, idx3 = ops.three_nn(unknown, known)
+    assert idx3.tolist() == [[[2, 1, 3]]]  # tie across the cut: fallback path
+
+
+def test_small_edge_sizes():
+    p = _rand(2, 5, 3, seed=60)
+    q = _rand(2, 3, 3, seed=61).requires_grad_(True)
+    phi, idx = ops.triangle_descriptor(q, p, 1)  # k = 1: no triangles
+    assert phi.shape == (2, 3, 0, 3) and idx.shape == (2, 3, 1)
+    phi.sum().backward()
+    assert (q.grad == 0).all()
+    phi5, idx5 = ops.triangle_descriptor(q.detach(), p, 5)  # k = N
+    np.testing.assert_array_equal(idx5.numpy(), ref.triangle_descriptor(q.detach().numpy(), p.numpy(), 5)[1])
+    with pytest.raises(Exception):
+        ops.triangle_descriptor(q.detach(), p, 6)
+    # npoint > N: distinct points first, then index 0 repeats
+    np.testing.assert_array_equal(ops.furthest_point_sample(p, 7).numpy(), ref.furthest_point_sample(p.numpy(), 7))
+    assert ops.furthest_point_sample(p, 7)[:, 5:].tolist() == [[0, 0], [0, 0]]

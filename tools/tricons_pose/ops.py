@@ -52,17 +52,21 @@ _ACOS_GRAD_MARGIN = 1e-6
 # ---------------------------------------------------------------------------
 
 def _pairwise_sqdist(a: Tensor, b: Tensor) -> Tensor:
-    """Squared distances (B, S, N) between a (B, S, 3) and b (B, N, 3).
+    """Squared distances (B, S, N) between a (B, S, 3) and b (B, N, 3); no autograd.
 
     Computed exactly as ``(dx*dx + dy*dy) + dz*dz`` with ``dx = a.x - b.x``
-    (separate multiplies and adds, no (B, S, N, 3) temporary).
+    (separate multiplies and adds, in place, no (B, S, N, 3) temporary).
     """
-    dx = a[..., 0].unsqueeze(-1) - b[..., 0].unsqueeze(-2)
-    d2 = dx * dx
-    dy = a[..., 1].unsqueeze(-1) - b[..., 1].unsqueeze(-2)
-    d2 = d2 + dy * dy
-    dz = a[..., 2].unsqueeze(-1) - b[..., 2].unsqueeze(-2)
-    return d2 + dz * dz
+    a = a.detach()
+    b = b.detach()
+    a0, a1, a2 = (t.unsqueeze(-1) for t in a.unbind(-1))
+    b0, b1, b2 = (t.unsqueeze(-2) for t in b.unbind(-1))
+    dx = a0 - b0
+    d2 = dx.mul_(dx)
+    dy = a1 - b1
+    d2.add_(dy.mul_(dy))
+    dz = torch.sub(a2, b2, out=dy)
+    return d2.add_(dz.mul_(dz))
 
 
 def _sqnorm_rows(x: Tensor, y: Tensor) -> Tensor:
@@ -72,8 +76,21 @@ def _sqnorm_rows(x: Tensor, y: Tensor) -> Tensor:
 
 
 def _knn_sorted(query: Tensor, points: Tensor, k: int) -> tuple[Tensor, Tensor]:
-    """k nearest points of each query: (sqdist, idx), ascending, ties -> lower index."""
+    """k nearest points of each query: (sqdist, idx), ascending, ties -> lower index.
+
+    Fast path: ``topk``; it is exact whenever exactly k distances are <= the
+    k-th smallest (no tie across the cut), and the k picks are then re-ordered
+    by (distance, index). Otherwise (a tie across the cut, NaN) a full stable sort.
+    """
     d2 = _pairwise_sqdist(query, points)
+    n = d2.shape[-1]
+    if k < n:
+        vals, idx = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
+        if bool(((d2 <= vals[..., -1:]).sum(-1) == k).all()):
+            idx, perm = torch.sort(idx, dim=-1)
+            vals = torch.gather(vals, -1, perm)
+            vals, order = torch.sort(vals, dim=-1, stable=True)
+            return vals, torch.gather(idx, -1, order)
     vals, idx = torch.sort(d2, dim=-1, stable=True)
     return vals[..., :k].contiguous(), idx[..., :k].contiguous()
 
@@ -201,10 +218,11 @@ def _ball_query_op(xyz: Tensor, new_xyz: Tensor, radius: float, nsample: int) ->
         return torch.zeros((B, S, max(nsample, 0)), dtype=torch.int64, device=xyz.device)
     r = torch.tensor(radius, dtype=xyz.dtype, device=xyz.device)
     r2 = r * r  # squared radius in the input dtype
-    d2 = _pairwise_sqdist(new_xyz.detach(), xyz.detach())  # (B, S, N)
+    d2 = _pairwise_sqdist(new_xyz, xyz)  # (B, S, N)
     hit = d2 < r2
+    del d2
     ar = torch.arange(N, dtype=torch.int64, device=xyz.device)
-    key = torch.where(hit, ar, torch.full_like(ar, N))  # misses sort last
+    key = torch.where(hit, ar, N)  # misses sort last
     kk = min(nsample, N)
     first = torch.topk(key, kk, dim=-1, largest=False, sorted=True).values  # (B,S,kk)
     if kk < nsample:
@@ -278,7 +296,7 @@ def _three_nn_op(unknown: Tensor, known: Tensor) -> tuple[Tensor, Tensor]:
     _check_xyz("known", known)
     if known.shape[1] < 3:
         raise ValueError("three_nn needs at least 3 known points")
-    d2, idx = _knn_sorted(unknown.detach(), known.detach(), 3)
+    d2, idx = _knn_sorted(unknown, known, 3)
     return torch.sqrt(d2), idx
 
 
@@ -433,7 +451,7 @@ def _tri_op(query: Tensor, points: Tensor, k: int) -> tuple[Tensor, Tensor]:
     _check_xyz("points", points)
     if k < 1 or k > points.shape[1]:
         raise ValueError(f"k must be in [1, N={points.shape[1]}], got {k}")
-    _, idx = _knn_sorted(query.detach(), points.detach(), k)
+    _, idx = _knn_sorted(query, points, k)
     with torch.no_grad():
         phi = triangle_descriptor_torch(query, points, idx)
     return phi, idx
