@@ -305,3 +305,60 @@ def test_ablation_configs_build_and_train(which):
         assert p.grad is not None and torch.isfinite(p.grad).all(), name
     with torch.no_grad():
         _check_pose(m.eval()(_inputs(cfg, 2)), 2, cfg.n_keypoints)
+
+
+def test_view_frame_pose_supervision():
+    cfg = ModelConfig.shipped().replace(n_points=256, pn2_npoints=(128, 32, 8))
+    m, out, _ = _train_step(cfg)
+    inp = _inputs(cfg, 2)
+    tg = {"R": out["R_view"].detach(), "t": out["t_view"].detach(), "s": out["s_view"].detach(),
+          "nocs": _targets(cfg, inp)["nocs"]}
+    L = compute_losses(out, tg, cfg, pose_frame="view")
+    assert L["pose"].item() < 1e-5
+    with pytest.raises(ValueError):
+        compute_losses(out, {k: v for k, v in tg.items() if k != "nocs"}, cfg, pose_frame="view")
+
+
+def test_forward_exports_to_onnx_with_symbolic_batch(tmp_path):
+    """Export at B=2 (TorchScript exporter + ai.tricons symbolics), run at B=3 with the
+    ONNX reference evaluator and the ops' numpy references: same outputs."""
+    onnx = pytest.importorskip("onnx")
+    from onnx.reference import ReferenceEvaluator
+    from tricons_pose import onnx_export_ops as oe
+
+    cfg = ModelConfig.shipped().replace(n_points=128, pn2_npoints=(64, 16, 4), crop_size=32,
+                                        n_keypoints=12)
+    torch.manual_seed(0)
+    m = TriConsPose(cfg).eval()
+    names = ["R", "t", "s", "kpt_3d", "kpt_nocs"]
+
+    class Wrap(torch.nn.Module):
+        def __init__(self, net):
+            super().__init__()
+            self.net = net
+
+        def forward(self, rgb, pts, choose):
+            o = self.net({"rgb": rgb, "pts": pts, "choose": choose})
+            return tuple(o[k] for k in names)
+
+    w = Wrap(m).eval()
+    oe.register_symbolics()
+    x2 = _inputs(cfg, 2)
+    path = str(tmp_path / "m.onnx")
+    torch.onnx.export(w, (x2["rgb"], x2["pts"], x2["choose"]), path, dynamo=False,
+                      opset_version=17, custom_opsets=oe.CUSTOM_OPSETS,
+                      input_names=["rgb", "pts", "choose"], output_names=names,
+                      dynamic_axes={k: {0: "B"} for k in ["rgb", "pts", "choose"] + names})
+    model = onnx.load(path)
+    domains = {n.op_type for n in model.graph.node if n.domain == "ai.tricons"}
+    assert domains == {"FurthestPointSample", "GatherPoints", "BallQuery", "GroupPoints",
+                       "ThreeNN", "ThreeInterpolate", "TriangleDescriptor"}
+    w.eval()
+    x3 = _inputs(cfg, 3, seed=5)
+    got = ReferenceEvaluator(model, new_ops=oe.reference_ops()).run(
+        None, {k: x3[k].numpy() for k in ["rgb", "pts", "choose"]})
+    with torch.no_grad():
+        ref = w(x3["rgb"], x3["pts"], x3["choose"])
+    for n, a, b in zip(names, got, ref):
+        assert a.shape == tuple(b.shape), n
+        assert abs(a - b.numpy()).max() < 1e-4, n

@@ -23,11 +23,18 @@ from torch import Tensor, nn
 
 
 def gather_pixel_features(feat: Tensor, choose: Tensor) -> Tensor:
-    """(B, C, H, W) feature map, (B, N) int64 row-major pixel indices -> (B, C, N)."""
+    """(B, C, H, W) feature map, (B, N) int64 row-major pixel indices -> (B, C, N).
+
+    Written as one flat row gather (ONNX ``Gather`` on a (B*H*W, C) table with
+    offsets b*H*W) rather than ``GatherElements``, which some runtimes and the ONNX
+    reference evaluator handle poorly for large axes.
+    """
     B, C = feat.shape[0], feat.shape[1]
-    flat = feat.reshape(B, C, -1)
-    idx = choose.unsqueeze(1).expand(-1, C, -1)
-    return torch.gather(flat, 2, idx)
+    hw = feat.shape[2] * feat.shape[3]
+    table = feat.reshape(B, C, hw).transpose(1, 2).reshape(-1, C)        # (B*HW, C)
+    offs = torch.arange(B, device=choose.device, dtype=choose.dtype).unsqueeze(1) * hw
+    rows = table[(choose + offs).reshape(-1)]                            # (B*N, C)
+    return rows.reshape(B, -1, C).transpose(1, 2)
 
 
 # ----------------------------------------------------------------------------- CNN

@@ -98,7 +98,7 @@ def cvc_loss(kpt_views: Tensor, dR: Tensor, dT: Tensor, dS: Tensor, eps: float =
 
 
 def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
-                   cfg: ModelConfig) -> Dict[str, Tensor]:
+                   cfg: ModelConfig, pose_frame: str = "camera") -> Dict[str, Tensor]:
     """All losses from :meth:`TriConsPose.forward_train` outputs.
 
     ``targets``: "R" (B,3,3), "t" (B,3), "s" (B,3) metres, camera frame; optional
@@ -106,16 +106,29 @@ def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
     i.e. p_obj / |s| in [-0.5, 0.5]). With "nocs" the keypoint target is
     heatmap @ nocs; without, AG-Pose's pose-derived target.
 
+    ``pose_frame="camera"`` (default): L_pose compares the view-0 prediction mapped
+    back to the camera frame ("R", "t", "s") with the original ground truth (exact
+    when view 0's scale is isotropic). ``pose_frame="view"``: L_pose compares
+    "R_view", "t_view", "s_view" with targets that the caller sets to view 0's exact
+    ground truth (e.g. data's ``aug_gt_R[:, 0]`` ...; then "nocs" should be view 0's
+    point NOCS too).
+
     Returns unweighted "pose", "nocs", "cd", "div", "rec", "delta", "cvc" (0 when
     use_sckd_loss is off) and the weighted sum "total".
     """
     pts = out["pts"]
     L: Dict[str, Tensor] = {}
-    L["pose"] = pose_loss(out["R"], out["t"], out["s"], targets["R"], targets["t"], targets["s"])
+    if pose_frame not in ("camera", "view"):
+        raise ValueError("pose_frame must be 'camera' or 'view'")
+    sfx = "" if pose_frame == "camera" else "_view"
+    L["pose"] = pose_loss(out["R" + sfx], out["t" + sfx], out["s" + sfx],
+                          targets["R"], targets["t"], targets["s"])
     if "nocs" in targets and targets["nocs"] is not None:
         tgt = nocs_target_from_heatmap(out["heatmap"], targets["nocs"])
-    else:
+    elif pose_frame == "camera":
         tgt = nocs_target_from_pose(out["kpt_3d"], targets["R"], targets["t"], targets["s"])
+    else:
+        raise ValueError('pose_frame="view" needs targets["nocs"]')
     L["nocs"] = smooth_l1_dis(out["kpt_nocs"], tgt, cfg.nocs_beta)
     L["cd"] = keypoint_surface_loss(out["kpt_3d"], pts)
     L["div"] = diversity_loss(out["kpt_3d"], cfg.div_threshold)

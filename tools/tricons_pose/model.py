@@ -500,6 +500,9 @@ class TriConsPose(nn.Module):
         isotropic dS_0).
 
         Returns {"R", "t", "s", "kpt_3d", "recon", "recon_delta" (camera frame),
+        "R_view", "t_view", "s_view" (view 0's own prediction, translation in camera
+        coordinates of the augmented scene: centred view frame + centroid; for
+        supervision with exact per-view targets, e.g. scaling along object axes),
         "kpt_nocs", "heatmap" (B, M, N) of view 0, "kpt_views" (B, V', M, 3) in the
         view frames (V' = 2 with use_sckd_loss, else 1), "dR", "dT", "dS" of those
         views, "pts" (the input cloud)}.
@@ -528,6 +531,7 @@ class TriConsPose(nn.Module):
             "R": R_0.transpose(1, 2) @ R0,
             "t": back(t0.unsqueeze(1)).squeeze(1),
             "s": s0 / s_iso,
+            "R_view": R0, "t_view": t0 + c.squeeze(1), "s_view": s0,
             "kpt_3d": back(kpt0),
             "recon": back(recon0),
             "recon_delta": delta0,
