@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Python-side tests (what CI runs after `cargo test`). Run from anywhere:
-#   tools/pytest.sh [pytest args...]
+#   tools/pytest.sh [pytest args...]   (default: all of tools/tests; paths are relative to tools/)
 # Creates tools/.venv (python3 -m venv) on first use and reinstalls
 # tools/requirements.txt only when its hash changed. Set PYTHON to pick the
 # interpreter that creates the venv (default python3), TRICONS_BIN to use a
@@ -21,4 +21,5 @@ if [ "$want" != "$have" ]; then
     echo "$want" > "$stamp"
 fi
 cd "$tools"
-exec "$venv/bin/python" -m pytest tests -q "$@"
+if [ $# -eq 0 ]; then set -- tests; fi
+exec "$venv/bin/python" -m pytest -q "$@"

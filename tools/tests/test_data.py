@@ -205,6 +205,7 @@ def test_dataset_samples(recording):
     rec = ds.recordings[0]
     assert len(ds) == sum(len(rec.annotations(i).instances) for i in range(len(rec)))
     k = rec.intrinsics
+    frames = {fi: (rec.mask(fi), rec.depth_m(fi), rec.nocs(fi), rec.color(fi)) for fi in range(len(rec))}
     for i in range(len(ds)):
         s = ds[i]
         assert s["rgb"].shape == (3, 64, 64) and s["rgb"].dtype == torch.float32
@@ -222,17 +223,17 @@ def test_dataset_samples(recording):
         rmin, rmax, cmin, _ = p.window
         v, u = ch // p.side + rmin, ch % p.side + cmin
         fi = ds.index[j].frame
-        assert np.all(rec.mask(fi)[v, u] == ref.id)
-        depth = rec.depth_m(fi)
+        mask, depth, nocs, color = frames[fi]
+        assert np.all(mask[v, u] == ref.id)
         assert np.all(depth[v, u] > 0)
         pts = s["pts"].double().numpy()
         np.testing.assert_allclose(pts[:, 2], depth[v, u], rtol=1e-6)
         np.testing.assert_allclose(pts[:, 0] / pts[:, 2] * k.fx + k.cx, u, atol=1e-3)
         np.testing.assert_allclose(pts[:, 1] / pts[:, 2] * k.fy + k.cy, v, atol=1e-3)
         np.testing.assert_array_equal(s["choose"].numpy(), D.remap_choose(ch, p.side, 64))
-        np.testing.assert_allclose(s["nocs"].numpy() + 0.5, rec.nocs(fi)[v, u], atol=1e-6)
+        np.testing.assert_allclose(s["nocs"].numpy() + 0.5, nocs[v, u], atol=1e-6)
         # the rgb is the normalised resized crop
-        crop = rec.color(fi)[rmin:rmax, cmin:p.window[3]]
+        crop = color[rmin:rmax, cmin:p.window[3]]
         np.testing.assert_allclose(s["rgb"].numpy(), D.normalise_rgb(D.resize_bilinear(crop, 64)), atol=1e-6)
 
 

@@ -42,8 +42,24 @@ def tiny_loss(out, targets, cfg):
     return {"pose": pose, "nocs": nocs, "total": pose + 2 * nocs}
 
 
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    """Shared preprocessed-instance cache: each frame is decoded once for all runs."""
+    global _CACHE
+    _CACHE = str(tmp_path_factory.mktemp("cache"))
+    return _CACHE
+
+
+_CACHE = None
+
+
+@pytest.fixture(autouse=True)
+def _use_cache(cache):
+    yield
+
+
 def _args(rec, out, *extra):
-    return T.parse_args(["--data", str(rec), "--out", str(out), "--epochs", "3", "--batch-size", "2", "--seed", "4",
+    return T.parse_args(["--data", str(rec), "--out", str(out), "--cache-dir", _CACHE, "--epochs", "3", "--batch-size", "2", "--seed", "4",
                          "--threads", "1", "--workers", "0", "--log-every", "1", "--lr", "1e-3", "--max-lr", "1e-2",
                          "--cycle-steps", "2", *extra])
 

@@ -288,7 +288,7 @@ def train(
                 last = rec
                 if args.log_every > 0 and (step % args.log_every == 0 or step == 1):
                     parts = " ".join(f"{k} {float(v.detach()):.4f}" for k, v in losses.items() if k != "total")
-                    print(f"epoch {epoch} step {step} loss {float(total):.4f} ({parts}) lr {lr:.2e} "
+                    print(f"epoch {epoch} step {step} loss {float(total.detach()):.4f} ({parts}) lr {lr:.2e} "
                           f"{rec['samples_per_s']:.1f} samples/s", flush=True)
                 if args.max_steps and step >= args.max_steps:
                     stop = True
