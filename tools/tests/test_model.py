@@ -362,3 +362,15 @@ def test_forward_exports_to_onnx_with_symbolic_batch(tmp_path):
     for n, a, b in zip(names, got, ref):
         assert a.shape == tuple(b.shape), n
         assert abs(a - b.numpy()).max() < 1e-4, n
+
+
+def test_dinov2_position_grid_resampling_matches_official_formula():
+    import torch.nn.functional as F
+    torch.manual_seed(0)
+    vit = DinoV2Encoder(8, 192).vit
+    P, D = 37, 384
+    grid = vit.pos_embed[:, 1:].reshape(1, P, P, D).permute(0, 3, 1, 2)
+    for g in (14, 9):
+        ref = F.interpolate(grid, scale_factor=((g + 0.1) / P, (g + 0.1) / P), mode="bicubic",
+                            align_corners=False).permute(0, 2, 3, 1).reshape(1, g * g, D)
+        assert torch.allclose(vit._pos(g, g)[:, 1:], ref, atol=1e-5)

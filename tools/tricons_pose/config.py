@@ -179,8 +179,13 @@ class ModelConfig:
 
         N=1024, M=96, C=256 (128 point + 128 image), B=6, K=16, K_gl=3, crop 192,
         tau 0.1, frozen DINOv2 ViT-S/14-shaped image encoder, PointNet++ MSG with
-        AG-Pose's four levels. About 35.9 M parameters in all (22.1 M of them in
-        the frozen ViT, so 13.8 M trainable).
+        AG-Pose's four levels, 4 SCKD attention blocks.
+
+        31.9 M parameters, of which 22.06 M are the ViT (frozen once weights are
+        loaded), so 9.9 M trainable. Measured on the project's shared 2-core CPU box
+        (torch 2.15, float32, 2 threads): forward_train + losses + backward + Adam
+        step for a batch of 16 (both views) 13-17 s; inference forward for a batch
+        of 16: 2.8 s. Meant for a GPU.
         """
         return cls(name="paper")
 
@@ -190,14 +195,17 @@ class ModelConfig:
         SynthNOCS instances.
 
         N=512, M=32, C=128 (64 point + 64 image), B=2, K=8, K_gl=3, crop 96, a small
-        encoder-decoder CNN for the image, PointNet++ MSG with three levels
-        (256/64/16 centres, radii doubled from the paper's first three levels to
-        fit the sparser cloud), 2 SCKD attention blocks. About 1.0 M parameters.
+        encoder-decoder CNN (118 k parameters) for the image, PointNet++ MSG with
+        three levels (256/64/16 centres, radii doubled from the paper's first three
+        levels to suit the sparser cloud, nsample 8/16), 2 SCKD attention blocks.
+        1.49 M parameters, all trainable.
 
-        Measured on this project's 2-core CPU box (torch 2.15, float32,
-        ``torch.set_num_threads(2)``): forward_train + total loss + backward for
-        a batch of 16 with both augmented views: ~1.3 s (see tools/MODEL.md for
-        the measurement command); inference forward for a batch of 16: ~0.25 s.
+        Measured on the project's shared 2-core CPU box (torch 2.15, float32,
+        2 threads, light load): forward_train + losses + backward + Adam step for a
+        batch of 16 with both augmented views 0.58-0.68 s (0.93 s of CPU time on
+        one thread); inference forward for a batch of 16: 0.15 s. At ~0.65 s a step,
+        2 hours are ~11 k steps = ~177 k samples, i.e. ~60 epochs of 3000 instances
+        (data loading not included).
         """
         return cls(
             name="shipped",

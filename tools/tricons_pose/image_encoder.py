@@ -14,8 +14,7 @@ features with ``choose`` (B, N), indices into the crop's row-major pixels.
 """
 from __future__ import annotations
 
-import math
-from typing import Dict, Mapping, Sequence, Union
+from typing import Dict, Mapping, Optional, Sequence, Union
 
 import torch
 import torch.nn.functional as F
@@ -156,10 +155,15 @@ class DinoV2ViT(nn.Module):
     """
 
     def __init__(self, patch: int = 14, dim: int = 384, depth: int = 12, heads: int = 6,
-                 mlp_ratio: float = 4.0, pos_grid: int = 37):
+                 mlp_ratio: float = 4.0, pos_grid: int = 37, grid: Optional[int] = None):
         super().__init__()
         self.patch = patch
         self.pos_grid = pos_grid
+        # position-grid resampling matrix for the expected token grid, precomputed
+        # (non-persistent buffer) so that forward/export only needs MatMuls
+        self.grid = grid
+        if grid is not None:
+            self.register_buffer("pos_interp", self.pos_interp_matrix(grid), persistent=False)
         self.patch_embed = _PatchEmbed(patch, dim)
         self.cls_token = nn.Parameter(torch.zeros(1, 1, dim))
         self.pos_embed = nn.Parameter(torch.zeros(1, 1 + pos_grid * pos_grid, dim))
@@ -173,13 +177,36 @@ class DinoV2ViT(nn.Module):
                 nn.init.trunc_normal_(m.weight, std=0.02)
                 nn.init.zeros_(m.bias)
 
+    def pos_interp_matrix(self, g: int) -> Tensor:
+        """(g, pos_grid) matrix A with A @ v == DINOv2's 1-D bicubic resampling of v.
+
+        DINOv2 resizes the position grid with ``F.interpolate(mode="bicubic",
+        scale_factor=(g + 0.1) / pos_grid)``, which is separable; A is that map
+        applied to the basis vectors, so ``A_h @ grid @ A_w^T`` reproduces it with
+        plain MatMuls (the TorchScript ONNX exporter cannot export bicubic with
+        scale factors).
+        """
+        P = self.pos_grid
+        basis = torch.eye(P, dtype=torch.float64).reshape(P, 1, P, 1).expand(P, 1, P, P)
+        sf = (g + 0.1) / P
+        out = F.interpolate(basis, scale_factor=(sf, sf), mode="bicubic", align_corners=False)
+        return out[:, 0, :, 0].transpose(0, 1).to(torch.float32)         # (g, P)
+
     def _pos(self, gh: int, gw: int) -> Tensor:
         D = self.pos_embed.shape[-1]
         cls_pos = self.pos_embed[:, :1]
-        grid = self.pos_embed[:, 1:].reshape(1, self.pos_grid, self.pos_grid, D).permute(0, 3, 1, 2)
+        grid = self.pos_embed[0, 1:].reshape(self.pos_grid, self.pos_grid, D)
         if (gh, gw) != (self.pos_grid, self.pos_grid):
-            grid = F.interpolate(grid, size=(gh, gw), mode="bicubic", align_corners=False)
-        return torch.cat([cls_pos, grid.permute(0, 2, 3, 1).reshape(1, gh * gw, D)], dim=1)
+            if self.grid is not None and gh == self.grid:
+                Ah = self.pos_interp.to(grid)
+            else:
+                Ah = self.pos_interp_matrix(gh).to(grid)
+            if self.grid is not None and gw == self.grid:
+                Aw = self.pos_interp.to(grid)
+            else:
+                Aw = self.pos_interp_matrix(gw).to(grid)
+            grid = torch.einsum("hi,ijd,wj->hwd", Ah, grid, Aw)
+        return torch.cat([cls_pos, grid.reshape(1, gh * gw, D)], dim=1)
 
     def forward(self, x: Tensor) -> Tensor:
         """(B, 3, H, W), H and W multiples of the patch -> (B, gh*gw, dim)."""
@@ -211,7 +238,7 @@ class DinoV2Encoder(nn.Module):
         g = max(1, int(round(crop_size / patch)))
         self.vit_input = g * patch
         self.grid = g
-        self.vit = DinoV2ViT(patch, dim, depth, heads, mlp_ratio, pos_grid)
+        self.vit = DinoV2ViT(patch, dim, depth, heads, mlp_ratio, pos_grid, grid=g)
         self.proj = nn.Conv2d(dim, out_channels, 1)
         self.frozen = False
 
