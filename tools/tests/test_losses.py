@@ -148,3 +148,43 @@ def test_compute_losses_total_is_weighted_sum():
     assert L["cvc"].item() > 0
     L2 = compute_losses(out, tg, cfg.without_sckd())
     assert L2["cvc"].item() == 0.0
+
+
+def _rot_y(phi):
+    c, s = math.cos(phi), math.sin(phi)
+    return torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=torch.float64)
+
+
+def test_canonical_symmetric_rotation_removes_rotation_about_y():
+    from tricons_pose.losses import canonical_symmetric_rotation
+    q, _ = torch.linalg.qr(torch.randn(4, 3, 3, generator=torch.Generator().manual_seed(1),
+                                       dtype=torch.float64))
+    R = q * torch.det(q).sign()[:, None, None]
+    Rc = canonical_symmetric_rotation(R)
+    for phi in (0.3, 1.7, -2.9):
+        assert torch.allclose(canonical_symmetric_rotation(R @ _rot_y(phi)), Rc, atol=1e-10)
+    assert torch.allclose(Rc[:, :, 1], R[:, :, 1], atol=1e-12)           # y axis kept
+    assert torch.allclose(Rc.transpose(1, 2) @ Rc, torch.eye(3, dtype=torch.float64).expand(4, 3, 3),
+                          atol=1e-10)
+
+
+def test_symmetric_instances_use_canonical_pose_targets():
+    cfg = ModelConfig.shipped()
+    B, M, N = 2, 4, 30
+    g = torch.Generator().manual_seed(0)
+    pts = torch.randn(B, N, 3, generator=g) * 0.05
+    aug = sample_augmentation(B, generator=g)
+    R_gt = (torch.eye(3) @ _rot_y(0.8).float()).expand(B, 3, 3)   # GT turned about y
+    # prediction: the canonical representative of the GT's class
+    out = {"R": torch.eye(3).expand(B, 3, 3), "t": torch.zeros(B, 3), "s": torch.ones(B, 3) * 0.2,
+           "kpt_3d": pts[:, :M], "recon": pts, "recon_delta": torch.zeros(B, 8, 3),
+           "kpt_nocs": torch.zeros(B, M, 3), "heatmap": torch.softmax(torch.randn(B, M, N, generator=g), -1),
+           "kpt_views": torch.randn(B, 2, M, 3, generator=g) * 0.05,
+           "dR": aug["dR"], "dT": aug["dT"], "dS": aug["dS"], "pts": pts}
+    tg = {"R": R_gt, "t": torch.zeros(B, 3), "s": torch.ones(B, 3) * 0.2,
+          "nocs": torch.rand(B, N, 3, generator=g) - 0.5, "sym": torch.tensor([True, False])}
+    L_sym = compute_losses(out, tg, cfg)
+    L_all = compute_losses(out, dict(tg, sym=torch.tensor([True, True])), cfg)
+    # prediction = canonical representative of the GT class: no error when symmetric
+    assert L_all["pose"].item() < 1e-5
+    assert L_sym["pose"].item() > 0.1

@@ -48,6 +48,20 @@ def nocs_target_from_pose(kpt: Tensor, R: Tensor, t: Tensor, s: Tensor) -> Tenso
     return ((kpt - t.unsqueeze(1)) / (torch.linalg.vector_norm(s, dim=-1)[:, None, None] + 1e-8)) @ R
 
 
+def canonical_symmetric_rotation(R: Tensor) -> Tensor:
+    """Representative of R modulo rotations about the object's y axis (AG-Pose's
+    treatment of bottle / bowl / can): R @ Ry(-theta) with
+    (cos theta, sin theta) proportional to (R00 + R22, R02 - R20). Invariant to
+    R -> R Ry(phi); keeps the y column. (B, 3, 3) -> (B, 3, 3)."""
+    tx = R[:, 0, 0] + R[:, 2, 2]
+    ty = R[:, 0, 2] - R[:, 2, 0]
+    n = torch.sqrt(tx * tx + ty * ty).clamp(min=1e-8)
+    c, s = tx / n, ty / n
+    z, o = torch.zeros_like(c), torch.ones_like(c)
+    S = torch.stack([c, z, -s, z, o, z, s, z, c], dim=-1).reshape(-1, 3, 3)
+    return R @ S
+
+
 def keypoint_surface_loss(kpt: Tensor, pts: Tensor) -> Tensor:
     """L_cd as AG-Pose (cd_dis_k2p): mean over keypoints of the distance to the nearest
     observed point (pulls keypoints onto the object surface)."""
@@ -103,8 +117,13 @@ def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
 
     ``targets``: "R" (B,3,3), "t" (B,3), "s" (B,3) metres, camera frame; optional
     "nocs" (B,N,3): ground-truth NOCS of the input points, centred (NOCS map - 0.5,
-    i.e. p_obj / |s| in [-0.5, 0.5]). With "nocs" the keypoint target is
-    heatmap @ nocs; without, AG-Pose's pose-derived target.
+    i.e. p_obj / |s| in [-0.5, 0.5]); optional "sym" (B,) bool: rotational symmetry
+    about the object's y axis. With "nocs" the keypoint target is heatmap @ nocs;
+    without, AG-Pose's pose-derived target R^T (kpt - t) / |s|. Both targets are
+    differentiable w.r.t. the keypoints (as in AG-Pose). For
+    symmetric instances the ground-truth R is replaced by
+    :func:`canonical_symmetric_rotation` (AG-Pose) and their NOCS target is the
+    pose-derived one with that R.
 
     ``pose_frame="camera"`` (default): L_pose compares the view-0 prediction mapped
     back to the camera frame ("R", "t", "s") with the original ground truth (exact
@@ -121,12 +140,25 @@ def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
     if pose_frame not in ("camera", "view"):
         raise ValueError("pose_frame must be 'camera' or 'view'")
     sfx = "" if pose_frame == "camera" else "_view"
-    L["pose"] = pose_loss(out["R" + sfx], out["t" + sfx], out["s" + sfx],
-                          targets["R"], targets["t"], targets["s"])
-    if "nocs" in targets and targets["nocs"] is not None:
+    R_gt, t_gt, s_gt = targets["R"], targets["t"], targets["s"]
+    sym = targets.get("sym")
+    if sym is not None:
+        sym = sym.reshape(-1).to(torch.bool)
+        R_gt = torch.where(sym[:, None, None], canonical_symmetric_rotation(R_gt), R_gt)
+    L["pose"] = pose_loss(out["R" + sfx], out["t" + sfx], out["s" + sfx], R_gt, t_gt, s_gt)
+    if pose_frame == "camera":
+        kpt_frame = out["kpt_3d"]
+    else:  # view 0's keypoints in the augmented scene's camera coordinates
+        kpt_frame = out["kpt_views"][:, 0] + pts.mean(dim=1, keepdim=True)
+    if targets.get("nocs") is not None:
         tgt = nocs_target_from_heatmap(out["heatmap"], targets["nocs"])
+        if sym is not None:
+            # symmetric instances: the NOCS map's rotation about y is arbitrary; use the
+            # target of the canonical pose instead (AG-Pose)
+            tgt_sym = nocs_target_from_pose(kpt_frame, R_gt, t_gt, s_gt)
+            tgt = torch.where(sym[:, None, None], tgt_sym, tgt)
     elif pose_frame == "camera":
-        tgt = nocs_target_from_pose(out["kpt_3d"], targets["R"], targets["t"], targets["s"])
+        tgt = nocs_target_from_pose(kpt_frame, R_gt, t_gt, s_gt)
     else:
         raise ValueError('pose_frame="view" needs targets["nocs"]')
     L["nocs"] = smooth_l1_dis(out["kpt_nocs"], tgt, cfg.nocs_beta)

@@ -510,7 +510,7 @@ class TriConsPose(nn.Module):
         pts = inputs["pts"]
         B = pts.shape[0]
         V = 2 if self.cfg.use_sckd_loss else 1
-        dR, dT, dS = aug["dR"][:, :V], aug["dT"][:, :V], aug["dS"][:, :V]
+        dR, dT, dS = (aug[k][:, :V].to(pts) for k in ("dR", "dT", "dS"))
         if dR.shape[1] < V:
             raise ValueError("use_sckd_loss needs two augmented views in aug")
         dS = dS.expand(-1, -1, 3) if dS.shape[-1] == 1 else dS
