@@ -168,14 +168,28 @@ def test_canonical_symmetric_rotation_removes_rotation_about_y():
                           atol=1e-10)
 
 
-def test_symmetric_instances_use_canonical_pose_targets():
+def test_closest_symmetric_rotation():
+    from tricons_pose.losses import closest_symmetric_rotation
+    q, _ = torch.linalg.qr(torch.randn(3, 3, 3, generator=torch.Generator().manual_seed(2),
+                                       dtype=torch.float64))
+    R = q * torch.det(q).sign()[:, None, None]
+    # a prediction equivalent to the GT up to a turn about y is matched exactly
+    pred = R @ _rot_y(1.1)
+    assert torch.allclose(closest_symmetric_rotation(R, pred), pred, atol=1e-10)
+    # a level view with y_obj = -y_cam (the degenerate case of the fixed canonical form)
+    level = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))[None]
+    pred = level @ _rot_y(-2.0)
+    assert torch.allclose(closest_symmetric_rotation(level, pred), pred, atol=1e-10)
+
+
+def test_symmetric_instances_ignore_rotation_about_y():
     cfg = ModelConfig.shipped()
     B, M, N = 2, 4, 30
     g = torch.Generator().manual_seed(0)
     pts = torch.randn(B, N, 3, generator=g) * 0.05
     aug = sample_augmentation(B, generator=g)
     R_gt = (torch.eye(3) @ _rot_y(0.8).float()).expand(B, 3, 3)   # GT turned about y
-    # prediction: the canonical representative of the GT's class
+    # prediction: the GT turned back about y (symmetry-equivalent)
     out = {"R": torch.eye(3).expand(B, 3, 3), "t": torch.zeros(B, 3), "s": torch.ones(B, 3) * 0.2,
            "kpt_3d": pts[:, :M], "recon": pts, "recon_delta": torch.zeros(B, 8, 3),
            "kpt_nocs": torch.zeros(B, M, 3), "heatmap": torch.softmax(torch.randn(B, M, N, generator=g), -1),
@@ -185,6 +199,6 @@ def test_symmetric_instances_use_canonical_pose_targets():
           "nocs": torch.rand(B, N, 3, generator=g) - 0.5, "sym": torch.tensor([True, False])}
     L_sym = compute_losses(out, tg, cfg)
     L_all = compute_losses(out, dict(tg, sym=torch.tensor([True, True])), cfg)
-    # prediction = canonical representative of the GT class: no error when symmetric
+    # symmetric: no rotation error; not symmetric: the 0.8 rad turn counts
     assert L_all["pose"].item() < 1e-5
     assert L_sym["pose"].item() > 0.1

@@ -48,18 +48,34 @@ def nocs_target_from_pose(kpt: Tensor, R: Tensor, t: Tensor, s: Tensor) -> Tenso
     return ((kpt - t.unsqueeze(1)) / (torch.linalg.vector_norm(s, dim=-1)[:, None, None] + 1e-8)) @ R
 
 
-def canonical_symmetric_rotation(R: Tensor) -> Tensor:
-    """Representative of R modulo rotations about the object's y axis (AG-Pose's
-    treatment of bottle / bowl / can): R @ Ry(-theta) with
-    (cos theta, sin theta) proportional to (R00 + R22, R02 - R20). Invariant to
-    R -> R Ry(phi); keeps the y column. (B, 3, 3) -> (B, 3, 3)."""
-    tx = R[:, 0, 0] + R[:, 2, 2]
-    ty = R[:, 0, 2] - R[:, 2, 0]
-    n = torch.sqrt(tx * tx + ty * ty).clamp(min=1e-8)
-    c, s = tx / n, ty / n
+def _y_alignment(M: Tensor) -> Tensor:
+    """Ry(-theta) maximising trace(M Ry(-theta)): (cos, sin) of theta proportional to
+    (M00 + M22, M02 - M20); identity where that vector vanishes. (B,3,3) -> (B,3,3)."""
+    tx = M[:, 0, 0] + M[:, 2, 2]
+    ty = M[:, 0, 2] - M[:, 2, 0]
+    n = torch.sqrt(tx * tx + ty * ty)
+    ok = n > 1e-6
+    nn_ = torch.where(ok, n, torch.ones_like(n))
+    c = torch.where(ok, tx / nn_, torch.ones_like(n))
+    s = torch.where(ok, ty / nn_, torch.zeros_like(n))
     z, o = torch.zeros_like(c), torch.ones_like(c)
-    S = torch.stack([c, z, -s, z, o, z, s, z, c], dim=-1).reshape(-1, 3, 3)
-    return R @ S
+    return torch.stack([c, z, -s, z, o, z, s, z, c], dim=-1).reshape(-1, 3, 3)
+
+
+def canonical_symmetric_rotation(R: Tensor) -> Tensor:
+    """AG-Pose's fixed representative of R modulo rotations about the object's y axis:
+    the member of {R Ry(phi)} closest to the identity (maximal trace). Invariant to
+    R -> R Ry(phi); keeps the y column. Ill-conditioned when R's y axis is near the
+    camera's -y axis (upright objects seen level by a y-down camera), which is why
+    :func:`compute_losses` uses :func:`closest_symmetric_rotation` instead."""
+    return R @ _y_alignment(R)
+
+
+def closest_symmetric_rotation(R_gt: Tensor, R_ref: Tensor) -> Tensor:
+    """The member of {R_gt Ry(phi)} closest to R_ref (maximal trace(R_ref^T R)), i.e.
+    the ground truth re-expressed in the symmetry-equivalent orientation nearest to
+    the prediction. Smooth in R_ref except when its y axis opposes R_gt's."""
+    return R_gt @ _y_alignment(R_ref.transpose(1, 2) @ R_gt)
 
 
 def keypoint_surface_loss(kpt: Tensor, pts: Tensor) -> Tensor:
@@ -121,9 +137,11 @@ def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
     about the object's y axis. With "nocs" the keypoint target is heatmap @ nocs;
     without, AG-Pose's pose-derived target R^T (kpt - t) / |s|. Both targets are
     differentiable w.r.t. the keypoints (as in AG-Pose). For
-    symmetric instances the ground-truth R is replaced by
-    :func:`canonical_symmetric_rotation` (AG-Pose) and their NOCS target is the
-    pose-derived one with that R.
+    symmetric instances the ground-truth R is replaced by the symmetry-equivalent
+    rotation nearest to the (detached) prediction, :func:`closest_symmetric_rotation`
+    (so L_pose only measures the y-axis error), and their NOCS target is the
+    pose-derived one with that R. (AG-Pose instead fixes one representative per GT,
+    :func:`canonical_symmetric_rotation`, ill-conditioned for level views.)
 
     ``pose_frame="camera"`` (default): L_pose compares the view-0 prediction mapped
     back to the camera frame ("R", "t", "s") with the original ground truth (exact
@@ -144,7 +162,8 @@ def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
     sym = targets.get("sym")
     if sym is not None:
         sym = sym.reshape(-1).to(torch.bool)
-        R_gt = torch.where(sym[:, None, None], canonical_symmetric_rotation(R_gt), R_gt)
+        R_near = closest_symmetric_rotation(R_gt, out["R" + sfx].detach())
+        R_gt = torch.where(sym[:, None, None], R_near, R_gt)
     L["pose"] = pose_loss(out["R" + sfx], out["t" + sfx], out["s" + sfx], R_gt, t_gt, s_gt)
     if pose_frame == "camera":
         kpt_frame = out["kpt_3d"]
@@ -154,7 +173,7 @@ def compute_losses(out: Dict[str, Tensor], targets: Dict[str, Tensor],
         tgt = nocs_target_from_heatmap(out["heatmap"], targets["nocs"])
         if sym is not None:
             # symmetric instances: the NOCS map's rotation about y is arbitrary; use the
-            # target of the canonical pose instead (AG-Pose)
+            # target of the symmetry-equivalent pose nearest to the prediction
             tgt_sym = nocs_target_from_pose(kpt_frame, R_gt, t_gt, s_gt)
             tgt = torch.where(sym[:, None, None], tgt_sym, tgt)
     elif pose_frame == "camera":
