@@ -41,7 +41,7 @@ def test_cvc_zero_for_two_rigid_scale_augmentations_mapped_back():
     assert loss.item() < 1e-20
 
 
-def test_cvc_scale_invariant_per_view_not_needed_but_mean_normalised():
+def test_normalised_distance_matrix_is_scale_invariant():
     # a global isotropic scale of one view's mapped-back keypoints leaves D-bar unchanged
     k = _kpts()
     assert torch.allclose(normalised_distance_matrix(k), normalised_distance_matrix(2.5 * k),
