@@ -1,0 +1,324 @@
+"""Train TriCons-Pose on tricons recordings (SynthNOCS).
+
+    python -m tricons_pose.train --data data/train --config shipped --out runs/shipped \\
+        --epochs 30 --batch-size 16 --seed 1 [--resume] [--device cpu|cuda|auto]
+
+Adam (lr 1e-4 = the paper's initial rate) with a triangular2 cyclic schedule
+(torch CyclicLR: from ``--lr`` up to ``--max-lr`` and back in 2 x
+``--cycle-steps`` optimiser steps, the amplitude halving every cycle; default
+half-cycle: 2 epochs). Writes to RUN_DIR:
+
+- ``config.json``: model configuration and training arguments;
+- ``log.jsonl``: one JSON line per step (step, epoch, lr, every loss term,
+  samples_per_s, data_s, step_s, time_s);
+- ``checkpoint.pt``: model, optimiser, scheduler, RNG states, epoch and step,
+  written every ``--ckpt-every`` steps and at each epoch end (temporary file +
+  rename, so a kill never leaves a torn checkpoint); ``--resume`` continues
+  from it exactly (same data order, same per-sample randomness, same RNG);
+- ``model.pt`` at the end: {"config", "model", "epoch", "step"} for export.
+
+Data order is a permutation per epoch from numpy's default_rng((seed, epoch));
+per-sample randomness is default_rng((seed, epoch, index)) (tricons_pose.data).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import random
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Sampler
+
+from .config import ModelConfig
+from .data import AugmentConfig, InstanceDataset, split_batch
+
+CONFIGS = ("shipped", "paper", "baseline", "without_sckd", "without_piga")
+LOG_FILE = "log.jsonl"
+CKPT_FILE = "checkpoint.pt"
+FINAL_FILE = "model.pt"
+
+
+def build_config(name: str) -> ModelConfig:
+    """``shipped`` | ``paper`` | ``baseline`` | ``without_sckd`` | ``without_piga``
+    (ablations of the shipped sizes), or a path to a ModelConfig JSON file."""
+    if name == "shipped":
+        return ModelConfig.shipped()
+    if name == "paper":
+        return ModelConfig.paper()
+    if name in ("baseline", "without_sckd", "without_piga"):
+        return getattr(ModelConfig.shipped(), name)()
+    if os.path.isfile(name):
+        return ModelConfig.from_json(Path(name).read_text(encoding="utf-8"))
+    raise SystemExit(f"--config: unknown configuration {name!r} (one of {', '.join(CONFIGS)} or a JSON file)")
+
+
+class EpochSampler(Sampler):
+    """Yields (epoch, index) pairs: a seeded permutation per epoch, from position ``start``.
+
+    The dataset receives the epoch with every index, so persistent DataLoader
+    workers need no epoch broadcast.
+    """
+
+    def __init__(self, n: int, seed: int, epoch: int = 0, start: int = 0):
+        self.n, self.seed, self.epoch, self.start = n, seed, epoch, start
+
+    def order(self) -> np.ndarray:
+        return np.random.default_rng((self.seed, self.epoch)).permutation(self.n)
+
+    def __iter__(self) -> Iterator[tuple[int, int]]:
+        for i in self.order()[self.start :]:
+            yield (self.epoch, int(i))
+
+    def __len__(self) -> int:
+        return self.n - self.start
+
+
+class EpochDataset(torch.utils.data.Dataset):
+    """Wraps an :class:`InstanceDataset` so that ``ds[(epoch, i)]`` uses that epoch's RNG."""
+
+    def __init__(self, ds: InstanceDataset):
+        self.ds = ds
+
+    def __len__(self) -> int:
+        return len(self.ds)
+
+    def __getitem__(self, key):
+        epoch, i = key
+        self.ds.epoch = epoch
+        return self.ds[i]
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m tricons_pose.train", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", nargs="+", required=True, help="recording directories (tricons synth output)")
+    p.add_argument("--config", default="shipped", help=f"{' | '.join(CONFIGS)} or a ModelConfig JSON file")
+    p.add_argument("--out", required=True, help="run directory (log, checkpoints)")
+    p.add_argument("--epochs", type=int, default=30)
+    p.add_argument("--batch-size", type=int, default=16)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
+    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    p.add_argument("--threads", type=int, default=0, help="torch.set_num_threads (0: all cores)")
+    p.add_argument("--workers", type=int, default=1, help="DataLoader worker processes (0: load in the main process)")
+    p.add_argument("--lr", type=float, default=1e-4, help="initial = lowest learning rate of the cycle")
+    p.add_argument("--max-lr", type=float, default=1e-3, help="peak of the first cycle (triangular2 halves it per cycle)")
+    p.add_argument("--cycle-steps", type=int, default=0, help="half-cycle length in steps (0: 2 epochs)")
+    p.add_argument("--log-every", type=int, default=10, help="stdout line every N steps")
+    p.add_argument("--ckpt-every", type=int, default=200, help="checkpoint every K steps (and at epoch ends)")
+    p.add_argument("--max-steps", type=int, default=0, help="stop after this global step (0: run all epochs)")
+    p.add_argument("--grad-clip", type=float, default=0.0, help="clip the gradient norm (0: off)")
+    p.add_argument("--cache-dir", default=None, help="keep preprocessed instances here as .npz (optional)")
+    p.add_argument("--no-color-jitter", action="store_true")
+    args = p.parse_args(argv)
+    if args.epochs < 1 or args.batch_size < 1:
+        p.error("--epochs and --batch-size must be positive")
+    return args
+
+
+def _rng_state() -> dict:
+    st = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+    if torch.cuda.is_available():
+        st["cuda"] = torch.cuda.get_rng_state_all()
+    return st
+
+
+def _set_rng_state(st: dict) -> None:
+    random.setstate(st["python"])
+    np.random.set_state(st["numpy"])
+    torch.set_rng_state(st["torch"])
+    if "cuda" in st and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(st["cuda"])
+
+
+def save_atomic(obj, path: Path) -> None:
+    """torch.save to a temporary file in the same directory, fsync, rename."""
+    tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as f:
+        torch.save(obj, f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _to_device(x, device):
+    if isinstance(x, torch.Tensor):
+        return x.to(device, non_blocking=True)
+    if isinstance(x, dict):
+        return {k: _to_device(v, device) for k, v in x.items()}
+    return x
+
+
+def default_model_factory(cfg: ModelConfig) -> torch.nn.Module:
+    from .model import TriConsPose
+
+    return TriConsPose(cfg)
+
+
+def default_loss_fn(outputs: dict, targets: dict, cfg: ModelConfig) -> dict:
+    from .losses import compute_losses
+
+    return compute_losses(outputs, targets, cfg)
+
+
+def train(
+    args: argparse.Namespace,
+    model_factory: Callable[[ModelConfig], torch.nn.Module] = default_model_factory,
+    loss_fn: Callable[[dict, dict, ModelConfig], dict] = default_loss_fn,
+    cfg: ModelConfig | None = None,
+) -> dict:
+    """Run training as described in the module docstring; returns a summary dict.
+
+    ``loss_fn(outputs, targets, cfg)`` must return a dict of scalar tensors with
+    a "total" entry (the others are logged).
+    """
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = cfg or build_config(args.config)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    else:
+        torch.set_num_threads(os.cpu_count() or 1)
+    if args.device == "auto":
+        device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    else:
+        if args.device == "cuda" and not torch.cuda.is_available():
+            raise SystemExit("--device cuda: CUDA is not available")
+        device = torch.device(args.device)
+
+    random.seed(args.seed)
+    np.random.seed(args.seed % 2**32)
+    torch.manual_seed(args.seed)
+
+    n_views = 2 if cfg.use_sckd_loss else 1
+    # view 0 drives the pose supervision in forward_train and is kept isotropic there
+    augment = AugmentConfig(n_views=n_views, isotropic_views=(0,), scale_axes="camera",
+                            color_jitter=not args.no_color_jitter)
+    ds = InstanceDataset(args.data, n_points=cfg.n_points, crop_size=cfg.crop_size, seed=args.seed,
+                         augment=augment, cache_dir=args.cache_dir)
+    steps_per_epoch = math.ceil(len(ds) / args.batch_size)
+    cycle = args.cycle_steps or 2 * steps_per_epoch
+
+    model = model_factory(cfg).to(device)
+    opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=args.lr)
+    sched = torch.optim.lr_scheduler.CyclicLR(opt, base_lr=args.lr, max_lr=args.max_lr, step_size_up=cycle,
+                                              mode="triangular2", cycle_momentum=False)
+    epoch, step_in_epoch, step = 0, 0, 0
+    ckpt_path = out / CKPT_FILE
+    if args.resume:
+        if not ckpt_path.exists():
+            raise SystemExit(f"--resume: {ckpt_path} does not exist")
+        ck = torch.load(ckpt_path, map_location=device, weights_only=False)
+        if ck["config"] != cfg.to_dict():
+            raise SystemExit(f"--resume: {ckpt_path} was written with a different model configuration")
+        if ck["n_samples"] != len(ds):
+            raise SystemExit(f"--resume: the data has {len(ds)} instances, the checkpoint's run had {ck['n_samples']}")
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        sched.load_state_dict(ck["scheduler"])
+        _set_rng_state(ck["rng"])
+        epoch, step_in_epoch, step = ck["epoch"], ck["step_in_epoch"], ck["step"]
+        if step_in_epoch >= steps_per_epoch:
+            epoch, step_in_epoch = epoch + 1, 0
+        print(f"resumed from {ckpt_path}: epoch {epoch}, step {step}", flush=True)
+    run_info = {"model_config": cfg.to_dict(), "args": vars(args), "n_samples": len(ds),
+                "steps_per_epoch": steps_per_epoch, "cycle_half_steps": cycle, "device": str(device),
+                "torch_threads": torch.get_num_threads()}
+    tmp = out / "config.json.tmp"
+    tmp.write_text(json.dumps(run_info, indent=2, default=str) + "\n", encoding="utf-8")
+    os.replace(tmp, out / "config.json")
+    if not args.resume:
+        print(f"{len(ds)} instances from {len(ds.recordings)} recording(s); {steps_per_epoch} steps/epoch; "
+              f"config {cfg.name}; device {device}; {torch.get_num_threads()} threads", flush=True)
+
+    def checkpoint(path: Path = ckpt_path) -> None:
+        save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                     "rng": _rng_state(), "epoch": epoch, "step_in_epoch": step_in_epoch, "step": step,
+                     "config": cfg.to_dict(), "n_samples": len(ds), "args": vars(args)}, path)
+
+    # one loader for the whole run (persistent workers keep their frame cache); the
+    # sampler is iterated in this process and told the epoch and start position
+    sampler = EpochSampler(len(ds), args.seed)
+    loader = DataLoader(EpochDataset(ds), batch_size=args.batch_size, sampler=sampler, num_workers=args.workers,
+                        persistent_workers=args.workers > 0, generator=torch.Generator().manual_seed(args.seed),
+                        pin_memory=device.type == "cuda")
+    log = open(out / LOG_FILE, "a", encoding="utf-8")
+    t_start = time.time()
+    last: dict = {}
+    stop = False
+    model.train()
+    try:
+        while epoch < args.epochs and not stop:
+            sampler.epoch, sampler.start = epoch, step_in_epoch * args.batch_size
+            t_data = time.time()
+            for batch in loader:
+                t0 = time.time()
+                inputs, aug, targets = split_batch(batch)
+                inputs, aug, targets = (_to_device(x, device) for x in (inputs, aug, targets))
+                outputs = model.forward_train(inputs, aug)
+                losses = loss_fn(outputs, targets, cfg)
+                total = losses["total"]
+                if not torch.isfinite(total):
+                    raise FloatingPointError(f"non-finite loss at step {step + 1}: "
+                                             + ", ".join(f"{k}={float(v):.4g}" for k, v in losses.items()))
+                opt.zero_grad(set_to_none=True)
+                total.backward()
+                if args.grad_clip > 0:
+                    torch.nn.utils.clip_grad_norm_(model.parameters(), args.grad_clip)
+                lr = opt.param_groups[0]["lr"]
+                opt.step()
+                sched.step()
+                step += 1
+                step_in_epoch += 1
+                t1 = time.time()
+                n = int(inputs["pts"].shape[0])
+                rec = {"step": step, "epoch": epoch, "lr": lr, **{k: float(v.detach()) for k, v in losses.items()},
+                       "samples_per_s": n / max(t1 - t_data, 1e-9), "data_s": t0 - t_data, "step_s": t1 - t0,
+                       "time_s": t1 - t_start}
+                log.write(json.dumps(rec) + "\n")
+                log.flush()
+                last = rec
+                if args.log_every > 0 and (step % args.log_every == 0 or step == 1):
+                    parts = " ".join(f"{k} {float(v.detach()):.4f}" for k, v in losses.items() if k != "total")
+                    print(f"epoch {epoch} step {step} loss {float(total.detach()):.4f} ({parts}) lr {lr:.2e} "
+                          f"{rec['samples_per_s']:.1f} samples/s", flush=True)
+                if args.max_steps and step >= args.max_steps:
+                    stop = True
+                    break
+                if args.ckpt_every > 0 and step % args.ckpt_every == 0:
+                    checkpoint()
+                t_data = time.time()
+            if not stop:
+                epoch, step_in_epoch = epoch + 1, 0
+                checkpoint()
+        if stop:
+            checkpoint()
+    finally:
+        log.close()
+    if not stop:
+        save_atomic({"config": cfg.to_dict(), "model": model.state_dict(), "epoch": epoch, "step": step},
+                    out / FINAL_FILE)
+    summary = {"epoch": epoch, "step": step, "last": last, "skipped_instances": sorted(ds.skipped)}
+    return summary
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point."""
+    args = parse_args(argv)
+    summary = train(args)
+    last = summary["last"]
+    print(f"done: epoch {summary['epoch']} step {summary['step']}"
+          + (f", last loss {last['total']:.4f}" if last else ""), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
