@@ -43,10 +43,16 @@ def load_model(path: str | os.PathLike) -> tuple[TriConsPose, ModelConfig]:
 
 @torch.no_grad()
 def predict_recording(
-    model: TriConsPose, cfg: ModelConfig, data: str | os.PathLike, batch_size: int = 32, seed: int = 0
+    model: TriConsPose, cfg: ModelConfig, data: str | os.PathLike, batch_size: int = 32, seed: int = 0,
+    cache_dir: str | os.PathLike | None = None,
 ) -> list[dict]:
-    """Predictions for every frame of recording ``data``, in frame order."""
-    ds = InstanceDataset([data], n_points=cfg.n_points, crop_size=cfg.crop_size, seed=seed, augment=None)
+    """Predictions for every frame of recording ``data``, in frame order.
+
+    ``cache_dir`` keeps the decoded, cropped instances (as in training) so that
+    evaluating several checkpoints on one recording decodes its PNGs once.
+    """
+    ds = InstanceDataset([data], n_points=cfg.n_points, crop_size=cfg.crop_size, seed=seed, augment=None,
+                         cache_dir=cache_dir)
     rec = ds.recordings[0]
     usable = []
     for i in range(len(ds)):
@@ -98,12 +104,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", required=True, help="predictions file to write (JSON Lines)")
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--seed", type=int, default=0, help="seed of the point sampling")
+    p.add_argument("--cache-dir", help="cache of decoded instances (speeds up repeated evaluations)")
     p.add_argument("--threads", type=int, default=0, help="torch.set_num_threads (0: all cores)")
     args = p.parse_args(argv)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     model, cfg = load_model(args.checkpoint)
-    frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed)
+    frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed, args.cache_dir)
     write_jsonl(args.out, frames)
     n = sum(len(f["instances"]) for f in frames)
     print(f"{n} instances in {len(frames)} frames -> {args.out}")
