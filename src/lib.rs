@@ -49,6 +49,7 @@ pub mod frame;
 pub mod geometry;
 pub mod image_io;
 pub mod metrics;
+pub mod ops;
 pub mod output;
 pub mod recording;
 pub mod synth;

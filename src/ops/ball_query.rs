@@ -1,0 +1,3 @@
+//! `BallQuery`: the first neighbours within a radius.
+
+pub mod kernel;

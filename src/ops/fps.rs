@@ -1,0 +1,3 @@
+//! `FurthestPointSample`: greedy farthest point sampling.
+
+pub mod kernel;

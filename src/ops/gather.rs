@@ -1,0 +1,3 @@
+//! `GatherPoints` and `GroupPoints`: feature gathers by point index.
+
+pub mod kernel;

@@ -1,0 +1,3 @@
+//! `ThreeNN` and `ThreeInterpolate`: inverse-distance feature propagation.
+
+pub mod kernel;

@@ -1,0 +1,3 @@
+//! `TriangleDescriptor`: the triangle-based geometric descriptor of PIGA.
+
+pub mod kernel;

@@ -1,0 +1,242 @@
+//! Scalar kernels of the `ai.tricons` custom operators: golden fixtures from the PyTorch
+//! reference (tests/fixtures/pose_ops) and properties.
+
+mod common;
+
+use common::npy::{Case, cases};
+use tricons::ops::{
+    OpError, ball_query::kernel::ball_query, fps::kernel::furthest_point_sample, gather::kernel as gather,
+    knn_brute_force, squared_distance, three_nn::kernel as nn, triangle::kernel::triangle_descriptor,
+};
+use tricons::synth::rng::Rng;
+
+/// Split a row-major tensor of the given shape into batch items.
+fn items<'a, T>(data: &'a [T], shape: &[usize]) -> Vec<&'a [T]> {
+    let per: usize = shape[1..].iter().product();
+    data.chunks(per.max(1)).take(shape[0]).collect()
+}
+
+fn assert_close(got: &[f32], want: &[f32], rel: f32, abs: f32, what: &str) {
+    assert_eq!(got.len(), want.len(), "{what}: length");
+    for (i, (g, w)) in got.iter().zip(want).enumerate() {
+        assert!((g - w).abs() <= abs + rel * w.abs(), "{what}[{i}]: got {g}, want {w}");
+    }
+}
+
+/// Run the kernel of `case` on every batch item; returns outputs by name, flattened.
+fn run(case: &Case) -> Vec<(String, Vec<f32>, Vec<i64>)> {
+    let b = case.arrays.values().next().unwrap().shape()[0];
+    let mut out: Vec<(String, Vec<f32>, Vec<i64>)> = Vec::new();
+    let mut push = |name: &str, f: Vec<f32>, i: Vec<i64>| match out.iter_mut().find(|(n, ..)| n == name) {
+        Some(e) => {
+            e.1.extend(f);
+            e.2.extend(i);
+        }
+        None => out.push((name.to_string(), f, i)),
+    };
+    for bi in 0..b {
+        let f = |name: &str| items(case.get(name).f32(), case.get(name).shape())[bi];
+        let ix = |name: &str| items(case.get(name).i64(), case.get(name).shape())[bi];
+        let shape = |name: &str| case.get(name).shape().to_vec();
+        match case.op() {
+            "FurthestPointSample" => {
+                let mut idx = vec![0i64; case.attr_u("npoint")];
+                furthest_point_sample(f("xyz"), idx.len(), &mut idx).unwrap();
+                push("idx", vec![], idx);
+            }
+            "GatherPoints" | "GroupPoints" => {
+                let (fs, is) = (shape("features"), shape("idx"));
+                let mut o = vec![0f32; fs[1] * is[1..].iter().product::<usize>()];
+                if case.op() == "GatherPoints" {
+                    gather::gather_points(f("features"), fs[2], ix("idx"), &mut o).unwrap();
+                } else {
+                    gather::group_points(f("features"), fs[2], ix("idx"), &mut o).unwrap();
+                }
+                push("out", o, vec![]);
+            }
+            "BallQuery" => {
+                let ns = case.attr_u("nsample");
+                let mut idx = vec![0i64; shape("new_xyz")[1] * ns];
+                ball_query(f("xyz"), f("new_xyz"), case.attr_f("radius") as f32, ns, &mut idx).unwrap();
+                push("idx", vec![], idx);
+            }
+            "ThreeNN" => {
+                let n = shape("unknown")[1];
+                let (mut d, mut i) = (vec![0f32; 3 * n], vec![0i64; 3 * n]);
+                nn::three_nn(f("unknown"), f("known"), &mut d, &mut i).unwrap();
+                push("dist", d, vec![]);
+                push("idx", vec![], i);
+            }
+            "ThreeInterpolate" => {
+                let fs = shape("features");
+                let mut o = vec![0f32; fs[1] * shape("idx")[1]];
+                nn::three_interpolate(f("features"), fs[2], ix("idx"), f("weight"), &mut o).unwrap();
+                push("out", o, vec![]);
+            }
+            "TriangleDescriptor" => {
+                let (k, m) = (case.attr_u("k"), shape("query")[1]);
+                let (mut phi, mut idx) = (vec![0f32; m * k * (k - 1) / 2 * 3], vec![0i64; m * k]);
+                triangle_descriptor(f("query"), f("points"), k, &mut phi, &mut idx).unwrap();
+                push("phi", phi, vec![]);
+                push("knn_idx", vec![], idx);
+            }
+            other => panic!("{}: unknown op {other}", case.dir.display()),
+        }
+    }
+    out
+}
+
+#[test]
+fn every_kernel_matches_its_pytorch_fixtures() {
+    let all = cases("pose_ops");
+    let mut ops: Vec<&str> = all.iter().map(|c| c.op()).collect();
+    ops.sort();
+    ops.dedup();
+    assert_eq!(ops.len(), 7, "fixtures cover all seven ops: {ops:?}");
+    for case in &all {
+        for (name, f, i) in run(case) {
+            let want = case.get(&name);
+            let what = format!("{}.{name}", case.dir.file_name().unwrap().to_string_lossy());
+            if i.is_empty() {
+                assert_close(&f, want.f32(), 1e-5, 1e-6, &what);
+            } else {
+                assert_eq!(i, want.i64(), "{what}");
+            }
+        }
+    }
+}
+
+fn cloud(rng: &mut Rng, n: usize, scale: f64) -> Vec<f32> {
+    (0..3 * n).map(|_| (rng.range(-1.0, 1.0) * scale) as f32).collect()
+}
+
+fn random_rotation(rng: &mut Rng) -> [[f64; 3]; 3] {
+    // unit quaternion from four uniform draws, normalised
+    let q: Vec<f64> = (0..4).map(|_| rng.range(-1.0, 1.0)).collect();
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (w, x, y, z) = (q[0] / n, q[1] / n, q[2] / n, q[3] / n);
+    [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
+    ]
+}
+
+fn transform(pts: &[f32], r: &[[f64; 3]; 3], t: [f64; 3]) -> Vec<f32> {
+    pts.chunks_exact(3)
+        .flat_map(|p| {
+            let p = [p[0] as f64, p[1] as f64, p[2] as f64];
+            (0..3).map(move |i| (r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i]) as f32)
+        })
+        .collect()
+}
+
+#[test]
+fn triangle_descriptor_is_invariant_to_rigid_transforms() {
+    let mut rng = Rng::new(11);
+    let (n, m, k) = (256, 24, 16);
+    let t_count = k * (k - 1) / 2;
+    for _ in 0..5 {
+        let pts = cloud(&mut rng, n, 0.1);
+        let query = cloud(&mut rng, m, 0.08);
+        let (mut phi, mut idx) = (vec![0f32; m * t_count * 3], vec![0i64; m * k]);
+        triangle_descriptor(&query, &pts, k, &mut phi, &mut idx).unwrap();
+        let r = random_rotation(&mut rng);
+        let t = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(0.5, 2.0)];
+        let (pts2, query2) = (transform(&pts, &r, t), transform(&query, &r, t));
+        let (mut phi2, mut idx2) = (vec![0f32; phi.len()], vec![0i64; idx.len()]);
+        triangle_descriptor(&query2, &pts2, k, &mut phi2, &mut idx2).unwrap();
+        assert_eq!(idx, idx2, "same neighbours after a rigid transform");
+        assert_close(&phi2, &phi, 0.0, 1e-5, "phi");
+        // each triangle's weighted angles sum to weight * pi, the weights to 1
+        for row in phi.chunks_exact(3 * t_count) {
+            let total: f64 = row.iter().map(|&v| v as f64).sum();
+            assert!((total - std::f64::consts::PI).abs() < 1e-4, "angles sum {total}");
+        }
+    }
+}
+
+#[test]
+fn fps_picks_distinct_farthest_points_deterministically() {
+    let mut rng = Rng::new(5);
+    let pts = cloud(&mut rng, 300, 0.2);
+    let mut a = vec![0i64; 64];
+    furthest_point_sample(&pts, 64, &mut a).unwrap();
+    let mut b = vec![0i64; 64];
+    furthest_point_sample(&pts, 64, &mut b).unwrap();
+    assert_eq!(a, b);
+    assert_eq!(a[0], 0);
+    let mut sorted = a.clone();
+    sorted.sort();
+    sorted.dedup();
+    assert_eq!(sorted.len(), 64, "distinct indices");
+    // greedy definition: each pick maximises the distance to the points picked before it
+    let p = |i: i64| &pts[3 * i as usize..3 * i as usize + 3];
+    for s in 1..a.len() {
+        let min_to_chosen = |j: usize| {
+            a[..s].iter().map(|&c| squared_distance(&pts[3 * j..3 * j + 3], p(c))).fold(f32::INFINITY, f32::min)
+        };
+        let best = (0..300).map(min_to_chosen).fold(f32::NEG_INFINITY, f32::max);
+        assert_eq!(min_to_chosen(a[s] as usize), best, "pick {s}");
+    }
+}
+
+#[test]
+fn ball_query_equals_the_brute_force_definition() {
+    let mut rng = Rng::new(9);
+    let (n, s, ns, radius) = (400, 50, 12, 0.05f32);
+    let xyz = cloud(&mut rng, n, 0.1);
+    let centres = cloud(&mut rng, s, 0.12);
+    let mut idx = vec![0i64; s * ns];
+    ball_query(&xyz, &centres, radius, ns, &mut idx).unwrap();
+    for (c, row) in centres.chunks_exact(3).zip(idx.chunks_exact(ns)) {
+        let inside: Vec<i64> = (0..n)
+            .filter(|&j| squared_distance(c, &xyz[3 * j..3 * j + 3]) < radius * radius)
+            .map(|j| j as i64)
+            .collect();
+        let mut want: Vec<i64> = inside.iter().copied().take(ns).collect();
+        let pad = want.first().copied().unwrap_or(0);
+        want.resize(ns, pad);
+        assert_eq!(row, want.as_slice());
+    }
+}
+
+#[test]
+fn knn_matches_a_stable_sort_including_ties_and_nan() {
+    let mut rng = Rng::new(3);
+    let mut pts = cloud(&mut rng, 60, 1.0);
+    for j in 10..20 {
+        // duplicates of point 3: ties must go to the lower index
+        let (a, b) = pts.split_at_mut(3 * j);
+        b[..3].copy_from_slice(&a[9..12]);
+    }
+    pts[3 * 40] = f32::NAN;
+    let q = [pts[9], pts[10], pts[11]];
+    for k in [1, 5, 16, 60] {
+        let (mut idx, mut d2) = (vec![0usize; k], vec![0f32; k]);
+        knn_brute_force(&q, &pts, k, &mut idx, &mut d2);
+        let mut order: Vec<usize> = (0..60).collect();
+        order.sort_by(|&a, &b| {
+            let (da, db) = (squared_distance(&q, &pts[3 * a..3 * a + 3]), squared_distance(&q, &pts[3 * b..3 * b + 3]));
+            da.total_cmp(&db).then(a.cmp(&b))
+        });
+        assert_eq!(idx, order[..k], "k = {k}");
+    }
+}
+
+#[test]
+fn kernels_refuse_bad_indices_and_too_few_points() {
+    let feats = vec![1f32; 2 * 5];
+    let mut out = vec![0f32; 2 * 2];
+    let err = gather::gather_points(&feats, 5, &[0, 5], &mut out).unwrap_err();
+    assert_eq!(err, OpError::IndexOutOfRange { op: "GatherPoints", index: 5, len: 5 });
+    assert!(gather::group_points(&feats, 5, &[-1, 0], &mut out).is_err());
+    let (mut d, mut i) = (vec![0f32; 3], vec![0i64; 3]);
+    let err = nn::three_nn(&[0.0; 3], &[0.0; 6], &mut d, &mut i).unwrap_err();
+    assert_eq!(err, OpError::TooFewPoints { op: "ThreeNN", need: 3, got: 2 });
+    let (mut phi, mut knn) = (vec![0f32; 3 * 3], vec![0i64; 3]);
+    assert!(triangle_descriptor(&[0.0; 3], &[0.0; 6], 3, &mut phi, &mut knn).is_err());
+    let mut idx = vec![0i64; 4];
+    assert!(matches!(furthest_point_sample(&[0.0; 9], 5, &mut idx), Err(OpError::BadLength { what: "out", .. })));
+    assert!(err.to_string().contains("ThreeNN"));
+}
