@@ -24,7 +24,41 @@ pub mod ball_query;
 pub mod fps;
 pub mod gather;
 pub mod three_nn;
+pub mod tract_glue;
 pub mod triangle;
+
+/// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
+pub const NODE_TYPES: [&str; 7] = [
+    "FurthestPointSample",
+    "GatherPoints",
+    "BallQuery",
+    "GroupPoints",
+    "ThreeNN",
+    "ThreeInterpolate",
+    "TriangleDescriptor",
+];
+
+/// Register every `ai.tricons` operator with a tract ONNX loader.
+///
+/// tract keys its op register by node type only (not domain); these names do not
+/// collide with standard ONNX operators.
+pub fn register(onnx: &mut tract_onnx::Onnx) {
+    let reg = &mut onnx.op_register;
+    reg.insert("FurthestPointSample", fps::onnx::parse);
+    reg.insert("GatherPoints", gather::onnx::parse_gather);
+    reg.insert("BallQuery", ball_query::onnx::parse);
+    reg.insert("GroupPoints", gather::onnx::parse_group);
+    reg.insert("ThreeNN", three_nn::onnx::parse_three_nn);
+    reg.insert("ThreeInterpolate", three_nn::onnx::parse_three_interpolate);
+    reg.insert("TriangleDescriptor", triangle::onnx::parse);
+}
+
+/// A tract ONNX loader with the standard operators and the `ai.tricons` ones.
+pub fn onnx_with_custom_ops() -> tract_onnx::Onnx {
+    let mut onnx = tract_onnx::onnx();
+    register(&mut onnx);
+    onnx
+}
 
 /// Why a kernel refused its inputs.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -80,9 +80,23 @@ class SmallCNN(nn.Module):
         y = feats[-1]
         for i, up in enumerate(self.up):
             skip = feats[-2 - i]
-            y = F.interpolate(y, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            y = _upsample_to(y, skip.shape[-2:])
             y = up(torch.cat([y, skip], dim=1))
         return self.head(y)
+
+
+def _upsample_to(y: Tensor, size) -> Tensor:
+    """Bilinear (half-pixel) resize of ``y`` to ``size``.
+
+    An exact integer ratio is expressed as a scale factor: the same result, and the
+    exported Resize then takes constant scales instead of sizes computed from the
+    input's (symbolic-batch) shape, which tract 0.23 cannot evaluate at run time.
+    """
+    h, w = int(size[0]), int(size[1])
+    yh, yw = int(y.shape[-2]), int(y.shape[-1])
+    if h % yh == 0 and w % yw == 0 and h // yh == w // yw:
+        return F.interpolate(y, scale_factor=float(h // yh), mode="bilinear", align_corners=False)
+    return F.interpolate(y, size=(h, w), mode="bilinear", align_corners=False)
 
 
 # ------------------------------------------------------------------------- DINOv2

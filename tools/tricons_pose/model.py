@@ -378,8 +378,12 @@ class PoseHead(nn.Module):
         kpt_nocs (B, M, 3) -> R (B, 3, 3), t_residual (B, 3), s (B, 3)."""
         x = torch.cat([self.emb_pts(kpt_rel * GEO_SCALE), f, self.emb_nocs(kpt_nocs)], dim=-1)
         x = self.mlp1(x)
-        x = torch.cat([x, x.mean(dim=1, keepdim=True).expand_as(x)], dim=-1)
-        x = self.mlp2(x).mean(dim=1)
+        # mlp2's first layer on cat([x, mean(x) expanded]), written as the sum of its two
+        # halves: same parameters and result, but no Expand + Concat in the exported graph
+        # (tract 0.23's declutter mis-splits that concat-einsum; docs/results.md)
+        first, h = self.mlp2[0], x.shape[-1]
+        x = F.linear(x, first.weight[:, :h], first.bias) + F.linear(x.mean(dim=1, keepdim=True), first.weight[:, h:])
+        x = self.mlp2[1:](x).mean(dim=1)
         R = rotation_matrix_from_6d(self.head_r(x))
         return R, self.head_t(x), F.softplus(self.head_s(x))
 
