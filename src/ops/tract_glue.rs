@@ -106,7 +106,7 @@ pub fn expand_op<T: CustomOp>(op: T) -> TractResult<(Box<dyn InferenceOp>, Vec<S
 pub fn input_slice<'a, T: Datum>(t: &'a TValue, op: &str, what: &str, rank: usize) -> TractResult<&'a [T]> {
     ensure!(t.datum_type() == T::datum_type(), "{op}: {what} is {:?}, expected {:?}", t.datum_type(), T::datum_type());
     ensure!(t.rank() == rank, "{op}: {what} has rank {}, expected {rank}", t.rank());
-    Ok(t.try_as_plain_ram()?.as_slice::<T>()?)
+    t.try_as_plain_ram()?.as_slice::<T>()
 }
 
 /// Rank-3 point cloud `(B, N, 3)` rule.
