@@ -51,6 +51,7 @@ pub mod image_io;
 pub mod metrics;
 pub mod ops;
 pub mod output;
+pub mod pose;
 pub mod recording;
 pub mod synth;
 

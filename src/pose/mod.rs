@@ -1,0 +1,3 @@
+//! TriCons-Pose inference: inputs from frames and masks, the exported graph in tract.
+
+pub mod preprocess;
