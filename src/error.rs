@@ -52,6 +52,18 @@ pub enum Error {
         /// The version this build reads.
         supported: u32,
     },
+    /// A model (graph or card) cannot be used: unreadable, inconsistent with its card,
+    /// or using an operator this build lacks.
+    #[error("{}: {message}", path.display())]
+    Model {
+        /// The graph or card file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// Running a model failed.
+    #[error("inference failed: {0}")]
+    Inference(String),
     /// A caller passed an argument outside its valid range.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
@@ -61,6 +73,11 @@ impl Error {
     /// An I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io { path: path.into(), source }
+    }
+
+    /// A model error on `path`.
+    pub fn model(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Error::Model { path: path.into(), message: message.into() }
     }
 
     /// A parse error in `path` (optionally at a 1-based `line`).

@@ -1,0 +1,166 @@
+//! The model card beside an exported pose graph (docs/formats.md, "Pose model").
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use sha2::{Digest, Sha256};
+
+use crate::error::{Error, Result};
+use crate::pose::preprocess::PreprocessConfig;
+
+/// `format` field of a model card.
+pub const CARD_FORMAT: &str = "tricons-model-card";
+/// Card version this build reads.
+pub const CARD_VERSION: u32 = 1;
+
+/// What the runtime reads from a model card.
+#[derive(Clone, Debug, Deserialize)]
+pub struct ModelCard {
+    /// Always [`CARD_FORMAT`].
+    pub format: String,
+    /// Card version.
+    pub version: u32,
+    /// Model family, e.g. "TriCons-Pose".
+    pub model: String,
+    /// Configuration name (shipped, paper, ablations).
+    pub config_name: String,
+    /// The graph file.
+    pub onnx: OnnxInfo,
+    /// Graph inputs in order.
+    pub inputs: Vec<TensorInfo>,
+    /// Graph outputs in order.
+    pub outputs: Vec<TensorInfo>,
+    /// Preprocessing constants.
+    pub preprocessing: CardPreprocessing,
+    /// Categories the model was trained on.
+    pub categories: Vec<String>,
+    /// Keypoints per instance (M).
+    pub n_keypoints: usize,
+    /// Trained or random weights, with provenance.
+    pub weights: serde_json::Value,
+    /// SynthNOCS-test metrics by IoU mode, when measured.
+    #[serde(default)]
+    pub metrics: serde_json::Value,
+}
+
+/// The graph file of a card.
+#[derive(Clone, Debug, Deserialize)]
+pub struct OnnxInfo {
+    /// File name, relative to the card's directory.
+    pub file: String,
+    /// SHA-256 of the file, hex.
+    pub sha256: String,
+    /// Custom node counts by type.
+    #[serde(default)]
+    pub custom_nodes: std::collections::BTreeMap<String, usize>,
+}
+
+/// One graph input or output.
+#[derive(Clone, Debug, Deserialize)]
+pub struct TensorInfo {
+    /// Tensor name.
+    pub name: String,
+    /// "float32" or "int64".
+    pub dtype: String,
+    /// Dims: numbers, or a name for the symbolic batch.
+    pub shape: Vec<serde_json::Value>,
+}
+
+/// The card's `preprocessing` block.
+#[derive(Clone, Debug, Deserialize)]
+pub struct CardPreprocessing {
+    /// N.
+    pub n_points: usize,
+    /// S.
+    pub crop_size: usize,
+    /// Minimum valid pixels (exclusive).
+    pub min_valid_pixels: usize,
+    /// Crop step.
+    pub crop_step_px: usize,
+    /// Largest crop.
+    pub max_crop_px: usize,
+    /// Colour scale (1/255).
+    pub rgb_scale: f64,
+    /// Normalisation mean.
+    pub rgb_mean: [f64; 3],
+    /// Normalisation std.
+    pub rgb_std: [f64; 3],
+}
+
+impl ModelCard {
+    /// Read and check a card file (format, version, I/O names, constants).
+    pub fn read(path: &Path) -> Result<ModelCard> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let card: ModelCard =
+            serde_json::from_str(&text).map_err(|e| Error::parse(path, Some(e.line()), e.to_string()))?;
+        let bad = |m: String| Err(Error::parse(path, None, m));
+        if card.format != CARD_FORMAT {
+            return bad(format!("field `format`: expected {CARD_FORMAT:?}, found {:?}", card.format));
+        }
+        if card.version != CARD_VERSION {
+            return bad(format!("field `version`: this build reads version {CARD_VERSION}, found {}", card.version));
+        }
+        let names = |v: &[TensorInfo]| v.iter().map(|t| t.name.clone()).collect::<Vec<_>>();
+        if names(&card.inputs) != ["rgb", "pts", "choose"] {
+            return bad(format!("field `inputs`: expected rgb, pts, choose, found {:?}", names(&card.inputs)));
+        }
+        if names(&card.outputs)[..3] != ["R", "t", "s"] {
+            return bad(format!("field `outputs`: expected R, t, s first, found {:?}", names(&card.outputs)));
+        }
+        let p = &card.preprocessing;
+        if p.n_points == 0 || p.crop_size == 0 || p.crop_step_px == 0 || p.max_crop_px < p.crop_step_px {
+            return bad("field `preprocessing`: sizes must be positive".into());
+        }
+        if (p.rgb_scale - 1.0 / 255.0).abs() > 1e-12 || p.rgb_std.iter().any(|&s| s <= 0.0) {
+            return bad("field `preprocessing`: rgb_scale must be 1/255 and rgb_std positive".into());
+        }
+        Ok(card)
+    }
+
+    /// The graph file, resolved against the card's directory.
+    pub fn onnx_path(&self, card_path: &Path) -> PathBuf {
+        card_path.parent().unwrap_or(Path::new(".")).join(&self.onnx.file)
+    }
+
+    /// Preprocessing configuration for this model.
+    pub fn preprocess_config(&self) -> PreprocessConfig {
+        let p = &self.preprocessing;
+        PreprocessConfig {
+            n_points: p.n_points,
+            crop_size: p.crop_size,
+            min_valid_pixels: p.min_valid_pixels,
+            crop_step_px: p.crop_step_px,
+            max_crop_px: p.max_crop_px,
+            rgb_mean: p.rgb_mean,
+            rgb_std: p.rgb_std,
+        }
+    }
+
+    /// Read the graph file and check its hash against the card; returns its bytes.
+    pub fn read_verified_graph(&self, card_path: &Path) -> Result<Vec<u8>> {
+        let path = self.onnx_path(card_path);
+        let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+        let digest = Sha256::digest(&bytes);
+        let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
+        if !hex.eq_ignore_ascii_case(&self.onnx.sha256) {
+            return Err(Error::model(
+                &path,
+                format!(
+                    "sha256 {hex} does not match its card {} ({}): the graph and card belong to different exports",
+                    self.onnx.sha256,
+                    card_path.display()
+                ),
+            ));
+        }
+        Ok(bytes)
+    }
+}
+
+/// The card path for a model argument: a `.card.json` as is, a `.onnx` with its card beside it.
+pub fn card_path_for(model: &Path) -> PathBuf {
+    let name = model.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    match name.strip_suffix(".onnx") {
+        Some(stem) => model.with_file_name(format!("{stem}.card.json")),
+        None => model.to_path_buf(),
+    }
+}

@@ -1,0 +1,202 @@
+//! [`PoseEstimator`]: load the exported TriCons-Pose graph once, estimate per frame.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use tract_onnx::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::frame::RgbdFrame;
+use crate::geometry::{Mat3, Pose, Vec3};
+use crate::pose::card::{ModelCard, card_path_for};
+use crate::pose::preprocess::{PoseInput, PreprocessConfig, build_input, prepare_instance, sample_indices};
+use crate::synth::rng::Rng;
+
+/// The pose of one instance as the network estimates it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseEstimate {
+    /// `camera_from_object` (rotation re-orthonormalised in f64).
+    pub camera_from_object: Pose,
+    /// Box size along the object axes, metres.
+    pub size_m: [f64; 3],
+    /// The M keypoints in the camera frame, metres.
+    pub keypoints_camera_m: Vec<[f32; 3]>,
+}
+
+/// Why an instance got no estimate.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Skipped {
+    /// The mask has no pixel.
+    EmptyMask,
+    /// Too few pixels with both mask and depth (the count found).
+    TooFewValidPixels(usize),
+    /// The network returned a non-finite value.
+    NonFiniteOutput,
+}
+
+/// Outcome for one instance.
+pub type InstanceOutcome = std::result::Result<PoseEstimate, Skipped>;
+
+/// A loaded pose model: card, preprocessing and an optimised tract plan with a symbolic
+/// instance batch (all instances of a frame run together).
+pub struct PoseEstimator {
+    card: ModelCard,
+    card_path: PathBuf,
+    cfg: PreprocessConfig,
+    plan: Arc<TypedRunnableModel>,
+}
+
+impl std::fmt::Debug for PoseEstimator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PoseEstimator").field("card", &self.card_path).field("config", &self.card.config_name).finish()
+    }
+}
+
+impl PoseEstimator {
+    /// Load a model from its card (`*.card.json`) or graph (`*.onnx`, card beside it).
+    ///
+    /// Checks the graph's hash against the card and its input shapes against the card's
+    /// N and S; a graph using an operator this build lacks is an error naming it.
+    pub fn load(model: &Path) -> Result<PoseEstimator> {
+        let card_path = card_path_for(model);
+        let card = ModelCard::read(&card_path)?;
+        let bytes = card.read_verified_graph(&card_path)?;
+        let onnx_path = card.onnx_path(&card_path);
+        let model_err = |e: TractError| Error::model(&onnx_path, format!("{e:#}"));
+        let inference = crate::ops::onnx_with_custom_ops().model_for_read(&mut bytes.as_slice()).map_err(model_err)?;
+        let typed = inference.into_typed().map_err(model_err)?;
+        let cfg = card.preprocess_config();
+        check_inputs(&typed, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
+        let plan = typed
+            .into_decluttered()
+            .and_then(|m| m.into_optimized())
+            .and_then(|m| m.into_runnable())
+            .map_err(model_err)?;
+        Ok(PoseEstimator { card, card_path, cfg, plan })
+    }
+
+    /// The model card.
+    pub fn card(&self) -> &ModelCard {
+        &self.card
+    }
+
+    /// Where the card was read from.
+    pub fn card_path(&self) -> &Path {
+        &self.card_path
+    }
+
+    /// The preprocessing configuration (from the card).
+    pub fn preprocess_config(&self) -> &PreprocessConfig {
+        &self.cfg
+    }
+
+    /// Estimate every instance of `frame` given its masks (row-major, frame-sized), in one
+    /// batched run. Point sampling draws from `Rng::from_words(&[seed, i])` for instance `i`.
+    pub fn estimate(&self, frame: &RgbdFrame, masks: &[&[bool]], seed: u64) -> Result<Vec<InstanceOutcome>> {
+        let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
+        let mut outcomes: Vec<InstanceOutcome> = Vec::with_capacity(masks.len());
+        let (mut inputs, mut batch) = (Vec::new(), Vec::new());
+        for (i, mask) in masks.iter().enumerate() {
+            if mask.len() != w * h {
+                return Err(Error::InvalidArgument(format!("mask {i} has {} pixels, the frame {w}x{h}", mask.len())));
+            }
+            let Some(prep) = prepare_instance(&frame.depth, mask, &self.cfg) else {
+                outcomes.push(Err(Skipped::EmptyMask));
+                continue;
+            };
+            if prep.n_valid() <= self.cfg.min_valid_pixels {
+                outcomes.push(Err(Skipped::TooFewValidPixels(prep.n_valid())));
+                continue;
+            }
+            let idx = sample_indices(prep.n_valid(), self.cfg.n_points, &mut Rng::from_words(&[seed, i as u64]));
+            inputs.push(build_input(
+                &frame.color,
+                frame.depth.depth_scale_m,
+                &frame.intrinsics,
+                &prep,
+                &idx,
+                &self.cfg,
+            ));
+            batch.push(i);
+            outcomes.push(Err(Skipped::EmptyMask)); // placeholder, replaced below
+        }
+        for (i, outcome) in batch.into_iter().zip(self.run_inputs(&inputs)?) {
+            outcomes[i] = outcome;
+        }
+        Ok(outcomes)
+    }
+
+    /// Run the graph on prepared inputs (one batch), decoding R, t, s and keypoints.
+    pub fn run_inputs(&self, inputs: &[PoseInput]) -> Result<Vec<InstanceOutcome>> {
+        let (n, s, b) = (self.cfg.n_points, self.cfg.crop_size, inputs.len());
+        if b == 0 {
+            return Ok(Vec::new());
+        }
+        for (i, x) in inputs.iter().enumerate() {
+            if x.rgb.len() != 3 * s * s || x.pts.len() != 3 * n || x.choose.len() != n {
+                return Err(Error::InvalidArgument(format!("input {i} does not have the card's sizes (N {n}, S {s})")));
+            }
+        }
+        let cat_f =
+            |f: fn(&PoseInput) -> &[f32]| inputs.iter().flat_map(|x| f(x).iter().copied()).collect::<Vec<f32>>();
+        let choose: Vec<i64> = inputs.iter().flat_map(|x| x.choose.iter().copied()).collect();
+        let tensor_err = |e: TractError| Error::Inference(format!("{e:#}"));
+        let tensors = tvec![
+            Tensor::from_shape(&[b, 3, s, s], &cat_f(|x| &x.rgb)).map_err(tensor_err)?.into_tvalue(),
+            Tensor::from_shape(&[b, n, 3], &cat_f(|x| &x.pts)).map_err(tensor_err)?.into_tvalue(),
+            Tensor::from_shape(&[b, n], &choose).map_err(tensor_err)?.into_tvalue(),
+        ];
+        let out = self.plan.run(tensors).map_err(tensor_err)?;
+        let slice = |k: usize| -> Result<&[f32]> {
+            out.get(k)
+                .ok_or_else(|| Error::Inference(format!("the graph returned {} outputs", out.len())))?
+                .try_as_plain_ram()
+                .and_then(|v| v.as_slice::<f32>())
+                .map_err(tensor_err)
+        };
+        let (r, t, sz, kpt) = (slice(0)?, slice(1)?, slice(2)?, slice(3)?);
+        let m = kpt.len() / b;
+        Ok((0..b)
+            .map(|j| {
+                decode(&r[9 * j..9 * j + 9], &t[3 * j..3 * j + 3], &sz[3 * j..3 * j + 3], &kpt[m * j..m * (j + 1)])
+            })
+            .collect())
+    }
+}
+
+/// The graph's inputs must be rgb (batch, 3, S, S), pts (batch, N, 3), choose (batch, N).
+fn check_inputs(model: &TypedModel, cfg: &PreprocessConfig) -> std::result::Result<(), String> {
+    let (n, s) = (cfg.n_points as i64, cfg.crop_size as i64);
+    let want: [(&str, Vec<i64>); 3] = [("rgb", vec![3, s, s]), ("pts", vec![n, 3]), ("choose", vec![n])];
+    if model.inputs.len() != 3 {
+        return Err(format!("the graph has {} inputs, its card 3 (rgb, pts, choose)", model.inputs.len()));
+    }
+    for (outlet, (name, dims)) in model.inputs.iter().zip(want) {
+        let fact = model.outlet_fact(*outlet).map_err(|e| e.to_string())?;
+        let got: Vec<Option<i64>> = fact.shape.iter().skip(1).map(|d| d.to_i64().ok()).collect();
+        if got != dims.iter().map(|&d| Some(d)).collect::<Vec<_>>() {
+            return Err(format!("input {name} has shape {:?}, its card says (batch, {dims:?})", fact.shape));
+        }
+    }
+    Ok(())
+}
+
+fn decode(r: &[f32], t: &[f32], s: &[f32], kpt: &[f32]) -> InstanceOutcome {
+    if r.iter().chain(t).chain(s).chain(kpt).any(|v| !v.is_finite()) {
+        return Err(Skipped::NonFiniteOutput);
+    }
+    let m = Mat3::from_row_slice(&r.iter().map(|&v| v as f64).collect::<Vec<_>>());
+    Ok(PoseEstimate {
+        camera_from_object: Pose::new(orthonormalise(&m), Vec3::new(t[0] as f64, t[1] as f64, t[2] as f64)),
+        size_m: [s[0] as f64, s[1] as f64, s[2] as f64],
+        keypoints_camera_m: kpt.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect(),
+    })
+}
+
+/// Gram-Schmidt on the columns (first column kept in direction), third = first x second.
+fn orthonormalise(m: &Mat3) -> Mat3 {
+    let a = m.column(0).normalize();
+    let b = (m.column(1) - a * a.dot(&m.column(1))).normalize();
+    let c = a.cross(&b);
+    Mat3::from_columns(&[a, b, c])
+}

@@ -1,0 +1,155 @@
+//! `PoseEstimator`: loading checks (hash, shapes, malformed cards), the fixtures through
+//! the public API, masks that cannot be estimated, determinism.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::npy::cases;
+use tricons::pose::preprocess::PoseInput;
+use tricons::pose::{PoseEstimator, Skipped};
+use tricons::recording::open_recording;
+
+fn models() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("models")
+}
+
+fn shipped() -> PoseEstimator {
+    PoseEstimator::load(&models().join("tricons-pose.card.json")).expect("the shipped model loads")
+}
+
+#[test]
+fn fixture_inputs_through_the_estimator_match_pytorch() {
+    let est = shipped();
+    let all = cases("pose_net");
+    let inputs: Vec<PoseInput> = all
+        .iter()
+        .map(|c| PoseInput {
+            rgb: c.get("rgb").f32().to_vec(),
+            pts: c.get("pts").f32().to_vec(),
+            choose: c.get("choose").i64().to_vec(),
+        })
+        .collect();
+    let out = est.run_inputs(&inputs).unwrap();
+    for (c, o) in all.iter().zip(out) {
+        let e = o.expect("estimated");
+        let r = c.get("R").f32();
+        let want = tricons::geometry::Mat3::from_row_slice(&r.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        // 2 asin(|dR|_F / sqrt 8): well conditioned near zero, unlike acos of the trace
+        let angle = (2.0 * ((e.camera_from_object.rotation - want).norm() / 8f64.sqrt()).asin()).to_degrees();
+        assert!(angle < 0.01, "{angle} deg");
+        for k in 0..3 {
+            assert!((e.camera_from_object.translation_m[k] - c.get("t").f32()[k] as f64).abs() < 1e-4);
+            assert!((e.size_m[k] - c.get("s").f32()[k] as f64).abs() < 1e-4);
+        }
+        let det = e.camera_from_object.rotation.determinant();
+        assert!((det - 1.0).abs() < 1e-9, "proper rotation");
+    }
+}
+
+#[test]
+fn a_whole_demo_frame_is_estimated_deterministically() {
+    let est = shipped();
+    let rec = open_recording(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo")).unwrap();
+    let frame = rec.read_frame(0).unwrap();
+    let ann = rec.read_annotations(0).unwrap().unwrap();
+    let label = ann.mask.unwrap();
+    let masks: Vec<Vec<bool>> = ann.instances.iter().map(|g| label.data.iter().map(|&v| v == g.id).collect()).collect();
+    let refs: Vec<&[bool]> = masks.iter().map(|m| m.as_slice()).collect();
+    let a = est.estimate(&frame, &refs, 7).unwrap();
+    assert_eq!(a, est.estimate(&frame, &refs, 7).unwrap(), "same seed, same result");
+    assert_eq!(a.len(), ann.instances.len());
+    // each estimate lands near its object (centre within 5 cm: the network is trained)
+    for (g, o) in ann.instances.iter().zip(&a) {
+        let e = o.as_ref().expect("every demo instance has enough pixels");
+        let d = (e.camera_from_object.translation_m - g.camera_from_object.translation_m).norm();
+        assert!(d < 0.05, "{:?}: translation off by {d} m", g.class);
+    }
+}
+
+#[test]
+fn unusable_masks_are_reported_not_estimated() {
+    let est = shipped();
+    let rec = open_recording(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo")).unwrap();
+    let mut frame = rec.read_frame(0).unwrap();
+    let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
+    let empty = vec![false; w * h];
+    let mut tiny = vec![false; w * h];
+    for i in 0..10 {
+        tiny[240 * w + 300 + i] = true;
+    }
+    let mut no_depth = vec![false; w * h];
+    for v in 100..140 {
+        for u in 100..140 {
+            no_depth[v * w + u] = true;
+            frame.depth.data[v * w + u] = 0; // a hole in the depth image under the object
+        }
+    }
+    let out = est.estimate(&frame, &[&empty, &tiny, &no_depth], 1).unwrap();
+    assert_eq!(out[0], Err(Skipped::EmptyMask));
+    assert_eq!(out[1], Err(Skipped::TooFewValidPixels(10)));
+    assert_eq!(out[2], Err(Skipped::TooFewValidPixels(0)));
+    let err = est.estimate(&frame, &[&empty[..10]], 1).unwrap_err();
+    assert!(err.to_string().contains("mask 0"), "{err}");
+}
+
+fn copy_model(dir: &Path) -> PathBuf {
+    for f in ["tricons-pose.onnx", "tricons-pose.card.json"] {
+        std::fs::copy(models().join(f), dir.join(f)).unwrap();
+    }
+    dir.join("tricons-pose.card.json")
+}
+
+fn edit_card(card: &Path, f: impl Fn(&mut serde_json::Value)) {
+    let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(card).unwrap()).unwrap();
+    f(&mut v);
+    std::fs::write(card, serde_json::to_string(&v).unwrap()).unwrap();
+}
+
+#[test]
+fn card_and_graph_mismatches_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let card = copy_model(dir.path());
+    // loading by the .onnx path finds the card beside it
+    PoseEstimator::load(&dir.path().join("tricons-pose.onnx")).unwrap();
+
+    edit_card(&card, |v| v["preprocessing"]["n_points"] = serde_json::json!(1024));
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("tricons-pose.onnx") && err.contains("input pts"), "{err}");
+
+    let card = copy_model(dir.path());
+    edit_card(&card, |v| v["onnx"]["sha256"] = serde_json::json!("00ff"));
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("sha256") && err.contains("tricons-pose.onnx"), "{err}");
+
+    let card = copy_model(dir.path());
+    edit_card(&card, |v| v["version"] = serde_json::json!(9));
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("tricons-pose.card.json") && err.contains("version"), "{err}");
+
+    std::fs::write(&card, "{\"format\": \"tricons-model-card\",").unwrap();
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("tricons-pose.card.json"), "{err}");
+
+    let card = copy_model(dir.path());
+    std::fs::remove_file(dir.path().join("tricons-pose.onnx")).unwrap();
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("tricons-pose.onnx"), "{err}");
+}
+
+#[test]
+fn a_corrupt_graph_is_an_error_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let card = copy_model(dir.path());
+    let onnx = dir.path().join("tricons-pose.onnx");
+    let mut bytes = std::fs::read(&onnx).unwrap();
+    bytes.truncate(bytes.len() / 3);
+    std::fs::write(&onnx, &bytes).unwrap();
+    let digest = {
+        use sha2::Digest;
+        sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect::<String>()
+    };
+    edit_card(&card, |v| v["onnx"]["sha256"] = serde_json::json!(digest));
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("tricons-pose.onnx"), "{err}");
+}
