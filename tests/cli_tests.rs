@@ -42,7 +42,9 @@ fn synth(dir: &Path, frames: &str, seed: &str) {
 
 #[test]
 fn every_command_has_help_with_an_example() {
-    for cmd in [&["--help"][..], &["synth", "--help"], &["eval", "--help"], &["inspect", "--help"]] {
+    for cmd in
+        [&["--help"][..], &["synth", "--help"], &["eval", "--help"], &["inspect", "--help"], &["replay", "--help"]]
+    {
         let o = tricons(cmd);
         assert!(o.status.success());
         let text = String::from_utf8_lossy(&o.stdout);
@@ -145,4 +147,88 @@ fn bad_input_fails_cleanly_naming_the_file() {
     fs::write(&manifest, text.replace("\"version\": 1", "\"version\": 2")).unwrap();
     let o = tricons(&["eval", "--gt", rec_s, "--pred", pred.to_str().unwrap()]);
     assert_clean_failure(&o, "version 2");
+}
+
+fn repo(path: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path).to_str().unwrap().to_string()
+}
+
+#[test]
+fn replay_of_the_demo_recording_writes_predictions_overlays_and_scores_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("pred.jsonl");
+    let overlays = dir.path().join("overlays");
+    let o = tricons(&[
+        "replay",
+        "--recording",
+        &repo("tests/data/synthnocs-demo"),
+        "--model",
+        &repo("models/tricons-pose.card.json"),
+        "--out",
+        out.to_str().unwrap(),
+        "--overlays",
+        overlays.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(table.contains("NOCS metrics") && table.contains("mean"), "{table}");
+    let text = fs::read_to_string(&out).unwrap();
+    let lines: Vec<serde_json::Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 4, "one line per frame");
+    let n: usize = lines.iter().map(|l| l["instances"].as_array().unwrap().len()).sum();
+    assert_eq!(n, 18, "every demo instance is estimated");
+    assert!(out.with_extension("eval.json").is_file());
+    for l in &lines {
+        let png = overlays.join(format!("{}_overlay.png", l["frame"].as_str().unwrap()));
+        let img = tricons::image_io::read_color_png(&png).unwrap();
+        assert_eq!((img.width, img.height), (640, 480));
+    }
+    // the same seed gives the same predictions
+    let out2 = dir.path().join("pred2.jsonl");
+    let o = tricons(&[
+        "replay",
+        "--recording",
+        &repo("tests/data/synthnocs-demo"),
+        "--model",
+        &repo("models/tricons-pose.onnx"),
+        "--out",
+        out2.to_str().unwrap(),
+        "--no-eval",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(fs::read_to_string(&out2).unwrap(), text);
+}
+
+#[test]
+fn replay_fails_cleanly_on_a_missing_model_or_a_recording_without_masks() {
+    let dir = tempfile::tempdir().unwrap();
+    let o =
+        tricons(&["replay", "--recording", &repo("tests/data/synthnocs-demo"), "--model", "no/such/model.card.json"]);
+    assert_clean_failure(&o, "no/such/model.card.json");
+    // a recording whose frames have no annotations
+    let rec = dir.path().join("rec");
+    fs::create_dir_all(&rec).unwrap();
+    let demo = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo");
+    let mut manifest: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(demo.join("manifest.json")).unwrap()).unwrap();
+    let frames = manifest["frames"].as_array_mut().unwrap();
+    frames.truncate(1);
+    for key in ["color", "depth"] {
+        let f = frames[0][key].as_str().unwrap().to_string();
+        fs::copy(demo.join(&f), rec.join(&f)).unwrap();
+    }
+    frames[0].as_object_mut().unwrap().remove("annotations");
+    fs::write(rec.join("manifest.json"), serde_json::to_string(&manifest).unwrap()).unwrap();
+    let out = dir.path().join("p.jsonl");
+    let o = tricons(&[
+        "replay",
+        "--recording",
+        rec.to_str().unwrap(),
+        "--model",
+        &repo("models/tricons-pose.card.json"),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_clean_failure(&o, "no instance masks");
+    assert!(!out.exists(), "nothing written on failure");
 }

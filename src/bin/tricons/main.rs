@@ -3,6 +3,7 @@
 mod eval;
 mod inspect;
 mod progress;
+mod replay;
 mod synth;
 
 use clap::{Parser, Subcommand};
@@ -10,10 +11,12 @@ use clap::{Parser, Subcommand};
 /// tricons: category-level 6D object pose estimation on edge boards.
 #[derive(Parser)]
 #[command(name = "tricons", version, about, long_about = None, propagate_version = true)]
-#[command(after_help = "Examples:\n  tricons synth --split test --out data/synthnocs-test\n  \
+#[command(
+    after_help = "Examples:\n  tricons replay                 # the shipped pose model on the shipped demo recording\n  tricons synth --split test --out data/synthnocs-test\n  \
     tricons inspect data/synthnocs-test --predictions > gt.jsonl\n  \
     tricons eval --gt data/synthnocs-test --pred gt.jsonl --iou corrected\n\n\
-    Set RUST_LOG=debug for more detail.")]
+    Set RUST_LOG=debug for more detail."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -27,6 +30,8 @@ enum Command {
     Eval(eval::Args),
     /// Print what a recording holds, or its ground truth as predictions.
     Inspect(inspect::Args),
+    /// Estimate poses over a recording with the pose model (ground-truth masks for now).
+    Replay(replay::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +41,7 @@ fn main() -> std::process::ExitCode {
         Command::Synth(args) => synth::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Inspect(args) => inspect::run(args),
+        Command::Replay(args) => replay::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,0 +1,156 @@
+//! `tricons replay`: run the pose model over a recorded sequence.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use tricons::atomic::write_atomic;
+use tricons::metrics::{EvalConfig, IouMode, evaluate_recording};
+use tricons::output::overlay::draw_overlay;
+use tricons::output::predictions::{FramePredictions, PredInstance, write_predictions};
+use tricons::pose::{PoseEstimator, Skipped};
+use tricons::recording::open_recording;
+
+use crate::progress;
+
+/// The shipped demo recording (four SynthNOCS-test frames).
+pub const DEFAULT_RECORDING: &str = "tests/data/synthnocs-demo";
+/// The shipped pose model's card.
+pub const DEFAULT_MODEL: &str = "models/tricons-pose.card.json";
+
+/// Arguments of `tricons replay`.
+#[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    tricons replay                                   # shipped model on the shipped demo recording\n  \
+    tricons replay --recording data/synthnocs-test --out data/replay/test.jsonl\n  \
+    tricons replay --recording data/synthnocs-test --overlays data/overlays --iou corrected\n\n\
+    Instances come from the recording's ground-truth masks (segmentation comes with the\n\
+    segmentation model). With ground truth, the NOCS metrics are printed at the end.")]
+pub struct Args {
+    /// Recording directory (tricons format or NOCS dataset layout).
+    #[arg(long, default_value = DEFAULT_RECORDING)]
+    recording: PathBuf,
+    /// Pose model: its card (`*.card.json`) or graph (`*.onnx`, card beside it).
+    #[arg(long, default_value = DEFAULT_MODEL)]
+    model: PathBuf,
+    /// Predictions to write (JSON Lines) [default: data/replay/<recording name>.jsonl].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Also write one overlay PNG per frame (3D boxes, axes, labels) into this directory.
+    #[arg(long)]
+    overlays: Option<PathBuf>,
+    /// Seed of the point sampling (frame i, instance j draw from (seed, i, j)).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// IoU variant of the evaluation at the end.
+    #[arg(long, default_value = "published")]
+    iou: IouMode,
+    /// Do not evaluate against the ground truth at the end.
+    #[arg(long)]
+    no_eval: bool,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
+    let t_load = Instant::now();
+    let estimator = PoseEstimator::load(&args.model).with_context(|| "loading the pose model (--model)")?;
+    log::info!(
+        "model {} ({}) loaded in {:.2} s; {}",
+        estimator.card_path().display(),
+        estimator.card().config_name,
+        t_load.elapsed().as_secs_f64(),
+        rec.describe()
+    );
+    let out = args.out.clone().unwrap_or_else(|| default_out(&args.recording));
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    if let Some(dir) = &args.overlays {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let bar = progress::bar(rec.len(), "replay");
+    let (mut frames, mut skipped, mut estimated) = (Vec::with_capacity(rec.len()), 0usize, 0usize);
+    let t_run = Instant::now();
+    for i in 0..rec.len() {
+        let frame = rec.read_frame(i)?;
+        let Some(ann) = rec.read_annotations(i)? else {
+            bail!(
+                "frame {} of {} has no instance masks: replay needs ground-truth masks until segmentation lands",
+                rec.frame_id(i),
+                rec.describe()
+            );
+        };
+        let Some(label) = &ann.mask else {
+            bail!("frame {} of {} has annotations but no instance mask", rec.frame_id(i), rec.describe());
+        };
+        let masks: Vec<Vec<bool>> =
+            ann.instances.iter().map(|g| label.data.iter().map(|&v| v == g.id).collect()).collect();
+        let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+        let outcomes = estimator.estimate(&frame, &refs, tricons::synth::rng::mix_seed(&[args.seed, i as u64]))?;
+        let mut instances = Vec::new();
+        for (g, o) in ann.instances.iter().zip(outcomes) {
+            match o {
+                Ok(e) => {
+                    estimated += 1;
+                    instances.push(PredInstance {
+                        class: g.class,
+                        score: 1.0,
+                        camera_from_object: e.camera_from_object,
+                        size_m: e.size_m,
+                        box2d: None,
+                        mask: None,
+                    })
+                }
+                Err(why) => {
+                    skipped += 1;
+                    log::debug!("frame {} instance {}: skipped ({})", rec.frame_id(i), g.id, describe(&why));
+                }
+            }
+        }
+        if let Some(dir) = &args.overlays {
+            let png = draw_overlay(&frame, &instances)?;
+            let path = dir.join(format!("{}_overlay.png", rec.frame_id(i)));
+            write_atomic(&path, &png)?;
+        }
+        frames.push(FramePredictions {
+            frame: rec.frame_id(i).to_string(),
+            timestamp_s: Some(frame.timestamp_s),
+            instances,
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let secs = t_run.elapsed().as_secs_f64();
+    write_predictions(&out, &frames)?;
+    log::info!(
+        "{} frames, {estimated} instances estimated, {skipped} skipped (too few valid pixels), {:.1} ms/frame -> {}",
+        frames.len(),
+        1e3 * secs / frames.len().max(1) as f64,
+        out.display()
+    );
+    if !args.no_eval {
+        let has_gt = (0..rec.len()).any(|i| matches!(rec.read_instances(i), Ok(Some(_))));
+        if has_gt {
+            let cfg = EvalConfig { iou_mode: args.iou, ..EvalConfig::default() };
+            let report = evaluate_recording(rec.as_ref(), &frames, &out, &cfg)?;
+            println!("{}", report.to_table());
+            let json_path = out.with_extension("eval.json");
+            write_atomic(&json_path, serde_json::to_string_pretty(&report)?.as_bytes())?;
+            log::info!("report written to {}", json_path.display());
+        }
+    }
+    Ok(())
+}
+
+fn default_out(recording: &Path) -> PathBuf {
+    let name = recording.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "replay".into());
+    PathBuf::from("data/replay").join(format!("{name}.jsonl"))
+}
+
+fn describe(s: &Skipped) -> String {
+    match s {
+        Skipped::EmptyMask => "empty mask".into(),
+        Skipped::TooFewValidPixels(n) => format!("{n} valid pixels"),
+        Skipped::NonFiniteOutput => "non-finite network output".into(),
+    }
+}
