@@ -28,6 +28,29 @@ pub trait OnnxRules {
     ) -> InferenceResult;
 }
 
+/// Implements [`OnnxRules`] for an op type: its node name, arity, and the body of
+/// `rules` with the op, the solver, the inputs and the outputs bound to the given names.
+macro_rules! onnx_rules {
+    ($ty:ty, $name:literal, inputs: $ni:literal, outputs: $no:literal, |$op:ident, $s:ident, $inputs:ident, $outputs:ident| $body:block) => {
+        impl $crate::ops::tract_glue::OnnxRules for $ty {
+            const NAME: &'static str = $name;
+            const N_INPUTS: usize = $ni;
+            const N_OUTPUTS: usize = $no;
+
+            fn rules<'r, 'p: 'r, 's: 'r>(
+                &'s self,
+                $s: &mut Solver<'r>,
+                $inputs: &'p [TensorProxy],
+                $outputs: &'p [TensorProxy],
+            ) -> InferenceResult {
+                let $op = self;
+                $body
+            }
+        }
+    };
+}
+pub(crate) use onnx_rules;
+
 /// Runtime side of a custom operator.
 pub trait TractKernel {
     /// Output facts (dtype and shape, possibly symbolic) from the input facts.

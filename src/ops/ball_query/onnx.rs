@@ -4,7 +4,7 @@ use tract_onnx::model::ParsingContext;
 use tract_onnx::pb::NodeProto;
 use tract_onnx::tract_hir::internal::*;
 
-use crate::ops::tract_glue::{OnnxRules, expand_op, points_rule};
+use crate::ops::tract_glue::{expand_op, onnx_rules, points_rule};
 
 /// `BallQuery(xyz (B, N, 3), new_xyz (B, S, 3)) -> idx (B, S, nsample) i64`, attributes
 /// `radius` (metres) and `nsample`.
@@ -32,24 +32,13 @@ pub fn parse(_ctx: &ParsingContext, node: &NodeProto) -> TractResult<(Box<dyn In
     expand_op(BallQuery { radius_bits: radius.to_bits(), nsample: nsample as usize })
 }
 
-impl OnnxRules for BallQuery {
-    const NAME: &'static str = "BallQuery";
-    const N_INPUTS: usize = 2;
-    const N_OUTPUTS: usize = 1;
-
-    fn rules<'r, 'p: 'r, 's: 'r>(
-        &'s self,
-        s: &mut Solver<'r>,
-        inputs: &'p [TensorProxy],
-        outputs: &'p [TensorProxy],
-    ) -> InferenceResult {
-        points_rule(s, &inputs[0])?;
-        points_rule(s, &inputs[1])?;
-        s.equals(&inputs[0].shape[0], &inputs[1].shape[0])?;
-        s.equals(&outputs[0].datum_type, i64::datum_type())?;
-        s.equals(&outputs[0].rank, 3)?;
-        s.equals(&outputs[0].shape[0], &inputs[1].shape[0])?;
-        s.equals(&outputs[0].shape[1], &inputs[1].shape[1])?;
-        s.equals(&outputs[0].shape[2], self.nsample.to_dim())
-    }
-}
+onnx_rules!(BallQuery, "BallQuery", inputs: 2, outputs: 1, |op, s, inputs, outputs| {
+    points_rule(s, &inputs[0])?;
+    points_rule(s, &inputs[1])?;
+    s.equals(&inputs[0].shape[0], &inputs[1].shape[0])?;
+    s.equals(&outputs[0].datum_type, i64::datum_type())?;
+    s.equals(&outputs[0].rank, 3)?;
+    s.equals(&outputs[0].shape[0], &inputs[1].shape[0])?;
+    s.equals(&outputs[0].shape[1], &inputs[1].shape[1])?;
+    s.equals(&outputs[0].shape[2], op.nsample.to_dim())
+});

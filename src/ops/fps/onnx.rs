@@ -4,7 +4,7 @@ use tract_onnx::model::ParsingContext;
 use tract_onnx::pb::NodeProto;
 use tract_onnx::tract_hir::internal::*;
 
-use crate::ops::tract_glue::{OnnxRules, expand_op, points_rule};
+use crate::ops::tract_glue::{expand_op, onnx_rules, points_rule};
 
 /// `FurthestPointSample(xyz (B, N, 3) f32) -> idx (B, npoint) i64`, attribute `npoint`.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -20,21 +20,10 @@ pub fn parse(_ctx: &ParsingContext, node: &NodeProto) -> TractResult<(Box<dyn In
     expand_op(FurthestPointSample { npoint: npoint as usize })
 }
 
-impl OnnxRules for FurthestPointSample {
-    const NAME: &'static str = "FurthestPointSample";
-    const N_INPUTS: usize = 1;
-    const N_OUTPUTS: usize = 1;
-
-    fn rules<'r, 'p: 'r, 's: 'r>(
-        &'s self,
-        s: &mut Solver<'r>,
-        inputs: &'p [TensorProxy],
-        outputs: &'p [TensorProxy],
-    ) -> InferenceResult {
-        points_rule(s, &inputs[0])?;
-        s.equals(&outputs[0].datum_type, i64::datum_type())?;
-        s.equals(&outputs[0].rank, 2)?;
-        s.equals(&outputs[0].shape[0], &inputs[0].shape[0])?;
-        s.equals(&outputs[0].shape[1], self.npoint.to_dim())
-    }
-}
+onnx_rules!(FurthestPointSample, "FurthestPointSample", inputs: 1, outputs: 1, |op, s, inputs, outputs| {
+    points_rule(s, &inputs[0])?;
+    s.equals(&outputs[0].datum_type, i64::datum_type())?;
+    s.equals(&outputs[0].rank, 2)?;
+    s.equals(&outputs[0].shape[0], &inputs[0].shape[0])?;
+    s.equals(&outputs[0].shape[1], op.npoint.to_dim())
+});

@@ -4,7 +4,7 @@ use tract_onnx::model::ParsingContext;
 use tract_onnx::pb::NodeProto;
 use tract_onnx::tract_hir::internal::*;
 
-use crate::ops::tract_glue::{OnnxRules, expand_op};
+use crate::ops::tract_glue::{expand_op, onnx_rules};
 
 /// `GatherPoints(features (B, C, N) f32, idx (B, S) i64) -> (B, C, S) f32`.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -46,32 +46,10 @@ fn gather_rules<'r, 'p: 'r>(
     Ok(())
 }
 
-impl OnnxRules for GatherPoints {
-    const NAME: &'static str = "GatherPoints";
-    const N_INPUTS: usize = 2;
-    const N_OUTPUTS: usize = 1;
+onnx_rules!(GatherPoints, "GatherPoints", inputs: 2, outputs: 1, |_op, s, inputs, outputs| {
+    gather_rules(s, inputs, outputs, 2)
+});
 
-    fn rules<'r, 'p: 'r, 's: 'r>(
-        &'s self,
-        s: &mut Solver<'r>,
-        inputs: &'p [TensorProxy],
-        outputs: &'p [TensorProxy],
-    ) -> InferenceResult {
-        gather_rules(s, inputs, outputs, 2)
-    }
-}
-
-impl OnnxRules for GroupPoints {
-    const NAME: &'static str = "GroupPoints";
-    const N_INPUTS: usize = 2;
-    const N_OUTPUTS: usize = 1;
-
-    fn rules<'r, 'p: 'r, 's: 'r>(
-        &'s self,
-        s: &mut Solver<'r>,
-        inputs: &'p [TensorProxy],
-        outputs: &'p [TensorProxy],
-    ) -> InferenceResult {
-        gather_rules(s, inputs, outputs, 3)
-    }
-}
+onnx_rules!(GroupPoints, "GroupPoints", inputs: 2, outputs: 1, |_op, s, inputs, outputs| {
+    gather_rules(s, inputs, outputs, 3)
+});

@@ -4,7 +4,7 @@ use tract_onnx::model::ParsingContext;
 use tract_onnx::pb::NodeProto;
 use tract_onnx::tract_hir::internal::*;
 
-use crate::ops::tract_glue::{OnnxRules, expand_op, points_rule};
+use crate::ops::tract_glue::{expand_op, onnx_rules, points_rule};
 
 /// `ThreeNN(unknown (B, n, 3), known (B, m, 3)) -> dist (B, n, 3) f32, idx (B, n, 3) i64`.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -27,57 +27,35 @@ pub fn parse_three_interpolate(
     expand_op(ThreeInterpolate)
 }
 
-impl OnnxRules for ThreeNN {
-    const NAME: &'static str = "ThreeNN";
-    const N_INPUTS: usize = 2;
-    const N_OUTPUTS: usize = 2;
-
-    fn rules<'r, 'p: 'r, 's: 'r>(
-        &'s self,
-        s: &mut Solver<'r>,
-        inputs: &'p [TensorProxy],
-        outputs: &'p [TensorProxy],
-    ) -> InferenceResult {
-        points_rule(s, &inputs[0])?;
-        points_rule(s, &inputs[1])?;
-        s.equals(&inputs[0].shape[0], &inputs[1].shape[0])?;
-        s.equals(&outputs[0].datum_type, f32::datum_type())?;
-        s.equals(&outputs[1].datum_type, i64::datum_type())?;
-        for o in outputs {
-            s.equals(&o.rank, 3)?;
-            s.equals(&o.shape[0], &inputs[0].shape[0])?;
-            s.equals(&o.shape[1], &inputs[0].shape[1])?;
-            s.equals(&o.shape[2], 3.to_dim())?;
-        }
-        Ok(())
+onnx_rules!(ThreeNN, "ThreeNN", inputs: 2, outputs: 2, |_op, s, inputs, outputs| {
+    points_rule(s, &inputs[0])?;
+    points_rule(s, &inputs[1])?;
+    s.equals(&inputs[0].shape[0], &inputs[1].shape[0])?;
+    s.equals(&outputs[0].datum_type, f32::datum_type())?;
+    s.equals(&outputs[1].datum_type, i64::datum_type())?;
+    for o in outputs {
+        s.equals(&o.rank, 3)?;
+        s.equals(&o.shape[0], &inputs[0].shape[0])?;
+        s.equals(&o.shape[1], &inputs[0].shape[1])?;
+        s.equals(&o.shape[2], 3.to_dim())?;
     }
-}
+    Ok(())
+});
 
-impl OnnxRules for ThreeInterpolate {
-    const NAME: &'static str = "ThreeInterpolate";
-    const N_INPUTS: usize = 3;
-    const N_OUTPUTS: usize = 1;
-
-    fn rules<'r, 'p: 'r, 's: 'r>(
-        &'s self,
-        s: &mut Solver<'r>,
-        inputs: &'p [TensorProxy],
-        outputs: &'p [TensorProxy],
-    ) -> InferenceResult {
-        s.equals(&inputs[0].datum_type, f32::datum_type())?;
-        s.equals(&inputs[0].rank, 3)?;
-        s.equals(&inputs[1].datum_type, i64::datum_type())?;
-        s.equals(&inputs[2].datum_type, f32::datum_type())?;
-        for t in &inputs[1..] {
-            s.equals(&t.rank, 3)?;
-            s.equals(&t.shape[0], &inputs[0].shape[0])?;
-            s.equals(&t.shape[2], 3.to_dim())?;
-        }
-        s.equals(&inputs[1].shape[1], &inputs[2].shape[1])?;
-        s.equals(&outputs[0].datum_type, f32::datum_type())?;
-        s.equals(&outputs[0].rank, 3)?;
-        s.equals(&outputs[0].shape[0], &inputs[0].shape[0])?;
-        s.equals(&outputs[0].shape[1], &inputs[0].shape[1])?;
-        s.equals(&outputs[0].shape[2], &inputs[1].shape[1])
+onnx_rules!(ThreeInterpolate, "ThreeInterpolate", inputs: 3, outputs: 1, |_op, s, inputs, outputs| {
+    s.equals(&inputs[0].datum_type, f32::datum_type())?;
+    s.equals(&inputs[0].rank, 3)?;
+    s.equals(&inputs[1].datum_type, i64::datum_type())?;
+    s.equals(&inputs[2].datum_type, f32::datum_type())?;
+    for t in &inputs[1..] {
+        s.equals(&t.rank, 3)?;
+        s.equals(&t.shape[0], &inputs[0].shape[0])?;
+        s.equals(&t.shape[2], 3.to_dim())?;
     }
-}
+    s.equals(&inputs[1].shape[1], &inputs[2].shape[1])?;
+    s.equals(&outputs[0].datum_type, f32::datum_type())?;
+    s.equals(&outputs[0].rank, 3)?;
+    s.equals(&outputs[0].shape[0], &inputs[0].shape[0])?;
+    s.equals(&outputs[0].shape[1], &inputs[0].shape[1])?;
+    s.equals(&outputs[0].shape[2], &inputs[1].shape[1])
+});
