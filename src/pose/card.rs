@@ -66,25 +66,15 @@ pub struct TensorInfo {
     pub shape: Vec<serde_json::Value>,
 }
 
-/// The card's `preprocessing` block.
+/// The card's `preprocessing` block: the preprocessing configuration plus the colour
+/// scale, which must be 1/255 (the runtime divides by 255 exactly as training did).
 #[derive(Clone, Debug, Deserialize)]
 pub struct CardPreprocessing {
-    /// N.
-    pub n_points: usize,
-    /// S.
-    pub crop_size: usize,
-    /// Minimum valid pixels (exclusive).
-    pub min_valid_pixels: usize,
-    /// Crop step.
-    pub crop_step_px: usize,
-    /// Largest crop.
-    pub max_crop_px: usize,
+    /// N, S, pixel thresholds, crop sizes, normalisation.
+    #[serde(flatten)]
+    pub config: PreprocessConfig,
     /// Colour scale (1/255).
     pub rgb_scale: f64,
-    /// Normalisation mean.
-    pub rgb_mean: [f64; 3],
-    /// Normalisation std.
-    pub rgb_std: [f64; 3],
 }
 
 impl ModelCard {
@@ -107,11 +97,11 @@ impl ModelCard {
         if names(&card.outputs)[..3] != ["R", "t", "s"] {
             return bad(format!("field `outputs`: expected R, t, s first, found {:?}", names(&card.outputs)));
         }
-        let p = &card.preprocessing;
+        let (p, rgb_scale) = (&card.preprocessing.config, card.preprocessing.rgb_scale);
         if p.n_points == 0 || p.crop_size == 0 || p.crop_step_px == 0 || p.max_crop_px < p.crop_step_px {
             return bad("field `preprocessing`: sizes must be positive".into());
         }
-        if (p.rgb_scale - 1.0 / 255.0).abs() > 1e-12 || p.rgb_std.iter().any(|&s| s <= 0.0) {
+        if (rgb_scale - 1.0 / 255.0).abs() > 1e-12 || p.rgb_std.iter().any(|&s| s <= 0.0) {
             return bad("field `preprocessing`: rgb_scale must be 1/255 and rgb_std positive".into());
         }
         Ok(card)
@@ -124,16 +114,7 @@ impl ModelCard {
 
     /// Preprocessing configuration for this model.
     pub fn preprocess_config(&self) -> PreprocessConfig {
-        let p = &self.preprocessing;
-        PreprocessConfig {
-            n_points: p.n_points,
-            crop_size: p.crop_size,
-            min_valid_pixels: p.min_valid_pixels,
-            crop_step_px: p.crop_step_px,
-            max_crop_px: p.max_crop_px,
-            rgb_mean: p.rgb_mean,
-            rgb_std: p.rgb_std,
-        }
+        self.preprocessing.config.clone()
     }
 
     /// Read the graph file and check its hash against the card; returns its bytes.

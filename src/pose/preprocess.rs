@@ -19,8 +19,8 @@ pub const IMAGENET_MEAN: [f64; 3] = [0.485, 0.456, 0.406];
 /// ImageNet standard deviation of the RGB normalisation.
 pub const IMAGENET_STD: [f64; 3] = [0.229, 0.224, 0.225];
 
-/// Sizes and constants of the preprocessing (from the model card).
-#[derive(Clone, Debug, PartialEq)]
+/// Sizes and constants of the preprocessing (from the model card's `preprocessing`).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
 pub struct PreprocessConfig {
     /// Points per instance (N).
     pub n_points: usize,
