@@ -30,7 +30,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tricons_pose import ops, ops_reference as ref  # noqa: E402
+from tricons_pose.onnx_export_ops import run_node  # noqa: E402
 from tricons_pose.data import InstanceDataset, backproject, normalise_rgb, remap_choose, resize_bilinear  # noqa: E402
 
 DEMO_FRAMES = (0, 2, 3, 5)
@@ -87,10 +87,6 @@ def _cloud(rng, b, n, scale=0.1):
     return (rng.standard_normal((b, n, 3)) * scale).astype(np.float32)
 
 
-def _t(a):
-    return torch.from_numpy(a)
-
-
 def make_ops(out: Path) -> None:
     """Op cases: random clouds, duplicates and ties, empty balls, coincident triangle points."""
     rng = np.random.default_rng(20251122)
@@ -99,61 +95,41 @@ def make_ops(out: Path) -> None:
 
     # FurthestPointSample
     xyz = _cloud(rng, 2, 200)
-    cases.append(("fps_random", "FurthestPointSample", {"npoint": 32}, {"xyz": xyz},
-                  lambda i: {"idx": ops.furthest_point_sample(_t(i["xyz"]), 32).numpy()}))
+    cases.append(("fps_random", "FurthestPointSample", {"npoint": 32}, {"xyz": xyz}))
     dup = np.repeat(_cloud(rng, 1, 6), 4, axis=1)  # 6 distinct points, each 4 times: FPS runs out of new points
-    cases.append(("fps_duplicates", "FurthestPointSample", {"npoint": 10}, {"xyz": dup},
-                  lambda i: {"idx": ops.furthest_point_sample(_t(i["xyz"]), 10).numpy()}))
+    cases.append(("fps_duplicates", "FurthestPointSample", {"npoint": 10}, {"xyz": dup}))
     # GatherPoints
     feats, gidx = rng.standard_normal((2, 5, 40)).astype(np.float32), rng.integers(0, 40, (2, 12))
-    cases.append(("gather_random", "GatherPoints", {}, {"features": feats, "idx": gidx},
-                  lambda i: {"out": ops.gather_points(_t(i["features"]), _t(i["idx"])).numpy()}))
+    cases.append(("gather_random", "GatherPoints", {}, {"features": feats, "idx": gidx}))
     # BallQuery: some centres far away (no hit -> zeros), some with fewer hits than nsample (padding)
     xyz = _cloud(rng, 2, 150)
     centres = np.concatenate([xyz[:, :10], _cloud(rng, 2, 4, 0.3) + np.float32(1.0)], axis=1)
-    cases.append(("ball_query_mixed", "BallQuery", {"radius": 0.08, "nsample": 16}, {"xyz": xyz, "new_xyz": centres},
-                  lambda i: {"idx": ops.ball_query(_t(i["xyz"]), _t(i["new_xyz"]), 0.08, 16).numpy()}))
+    cases.append(("ball_query_mixed", "BallQuery", {"radius": 0.08, "nsample": 16}, {"xyz": xyz, "new_xyz": centres}))
     # GroupPoints
     feats, kidx = rng.standard_normal((2, 4, 30)).astype(np.float32), rng.integers(0, 30, (2, 7, 5))
-    cases.append(("group_random", "GroupPoints", {}, {"features": feats, "idx": kidx},
-                  lambda i: {"out": ops.group_points(_t(i["features"]), _t(i["idx"])).numpy()}))
+    cases.append(("group_random", "GroupPoints", {}, {"features": feats, "idx": kidx}))
     # ThreeNN / ThreeInterpolate
     unknown, known = _cloud(rng, 2, 50), _cloud(rng, 2, 12)
-    cases.append(("three_nn_random", "ThreeNN", {}, {"unknown": unknown, "known": known},
-                  lambda i: dict(zip(("dist", "idx"), (x.numpy() for x in ops.three_nn(_t(i["unknown"]), _t(i["known"])))))))
+    cases.append(("three_nn_random", "ThreeNN", {}, {"unknown": unknown, "known": known}))
     feats = rng.standard_normal((2, 6, 12)).astype(np.float32)
     tidx = rng.integers(0, 12, (2, 50, 3))
     w = rng.random((2, 50, 3)).astype(np.float32)
     w /= w.sum(-1, keepdims=True)
-    cases.append(("three_interpolate_random", "ThreeInterpolate", {}, {"features": feats, "idx": tidx, "weight": w},
-                  lambda i: {"out": ops.three_interpolate(_t(i["features"]), _t(i["idx"]), _t(i["weight"])).numpy()}))
+    cases.append(("three_interpolate_random", "ThreeInterpolate", {}, {"features": feats, "idx": tidx, "weight": w}))
     # TriangleDescriptor
     pts = _cloud(rng, 2, 128)
     query = pts[:, ::8][:, :12] + _cloud(rng, 2, 12, 0.01)
-    cases.append(("triangle_random_k8", "TriangleDescriptor", {"k": 8}, {"query": query, "points": pts},
-                  lambda i: dict(zip(("phi", "knn_idx"),
-                                     (x.numpy() for x in ops.triangle_descriptor(_t(i["query"]), _t(i["points"]), 8))))))
+    cases.append(("triangle_random_k8", "TriangleDescriptor", {"k": 8}, {"query": query, "points": pts}))
     pts = _cloud(rng, 1, 64)
     pts[0, 5] = pts[0, 9]  # coincident points
     query = pts[:, [5, 20, 33]].copy()  # queries equal to points (kept as their own neighbours)
-    cases.append(("triangle_coincident_k16", "TriangleDescriptor", {"k": 16}, {"query": query, "points": pts},
-                  lambda i: dict(zip(("phi", "knn_idx"),
-                                     (x.numpy() for x in ops.triangle_descriptor(_t(i["query"]), _t(i["points"]), 16))))))
+    cases.append(("triangle_coincident_k16", "TriangleDescriptor", {"k": 16}, {"query": query, "points": pts}))
 
-    refs = {
-        "FurthestPointSample": lambda i, a: {"idx": ref.furthest_point_sample(i["xyz"], a["npoint"])},
-        "GatherPoints": lambda i, a: {"out": ref.gather_points(i["features"], i["idx"])},
-        "BallQuery": lambda i, a: {"idx": ref.ball_query(i["xyz"], i["new_xyz"], a["radius"], a["nsample"])},
-        "GroupPoints": lambda i, a: {"out": ref.group_points(i["features"], i["idx"])},
-        "ThreeNN": lambda i, a: dict(zip(("dist", "idx"), ref.three_nn(i["unknown"], i["known"]))),
-        "ThreeInterpolate": lambda i, a: {"out": ref.three_interpolate(i["features"], i["idx"], i["weight"])},
-        "TriangleDescriptor": lambda i, a: dict(zip(("phi", "knn_idx"), ref.triangle_descriptor(i["query"], i["points"], a["k"]))),
-    }
     out.mkdir(parents=True, exist_ok=True)
-    for name, op, attrs, inputs, fn in cases:
+    for name, op, attrs, inputs in cases:
         inputs = {k: (v.astype(np.int64) if v.dtype.kind == "i" else v) for k, v in inputs.items()}
-        got = fn(inputs)
-        want = refs[op](inputs, attrs)
+        got = run_node(op, inputs, attrs, "torch")
+        want = run_node(op, inputs, attrs, "reference")
         for k, v in got.items():
             if v.dtype.kind == "i":
                 assert np.array_equal(v, want[k]), f"{name}.{k}: torch op != numpy reference"

@@ -12,7 +12,8 @@ import pytest
 import torch
 
 from conftest import REPO
-from tricons_pose import export, ops
+from tricons_pose import export
+from tricons_pose.onnx_export_ops import NODE_SIGNATURES, run_node
 from tricons_pose import ops_reference as ref
 from tricons_pose.config import ModelConfig
 from tricons_pose.data import InstanceDataset, backproject, normalise_rgb, remap_choose, resize_bilinear
@@ -61,8 +62,7 @@ def test_graph_io_opset_and_custom_nodes(tiny_export):
 
 
 def ops_names():
-    return ["BallQuery", "FurthestPointSample", "GatherPoints", "GroupPoints", "ThreeInterpolate", "ThreeNN",
-            "TriangleDescriptor"]
+    return sorted(NODE_SIGNATURES)
 
 
 @pytest.mark.parametrize("batch,seed", [(1, 11), (3, 12)])
@@ -207,15 +207,6 @@ def test_network_fixture_inputs_are_the_training_preprocessing_of_the_demo_frame
 
 # ------------------------------------------------------------------ op fixtures
 
-TORCH_OPS = {
-    "FurthestPointSample": lambda i, at: {"idx": ops.furthest_point_sample(i["xyz"], at["npoint"])},
-    "GatherPoints": lambda i, at: {"out": ops.gather_points(i["features"], i["idx"])},
-    "BallQuery": lambda i, at: {"idx": ops.ball_query(i["xyz"], i["new_xyz"], at["radius"], at["nsample"])},
-    "GroupPoints": lambda i, at: {"out": ops.group_points(i["features"], i["idx"])},
-    "ThreeNN": lambda i, at: dict(zip(("dist", "idx"), ops.three_nn(i["unknown"], i["known"]))),
-    "ThreeInterpolate": lambda i, at: {"out": ops.three_interpolate(i["features"], i["idx"], i["weight"])},
-    "TriangleDescriptor": lambda i, at: dict(zip(("phi", "knn_idx"), ops.triangle_descriptor(i["query"], i["points"], at["k"]))),
-}
 OP_CASES = sorted(p.name for p in (FIXTURES / "pose_ops").iterdir() if (p / "case.json").exists())
 
 
@@ -227,10 +218,10 @@ def test_every_op_has_fixtures():
 @pytest.mark.parametrize("name", OP_CASES)
 def test_op_fixtures_match_the_torch_ops(name):
     case, a = _load_case(FIXTURES / "pose_ops" / name)
-    inputs = {e["name"]: torch.from_numpy(a[e["name"]]) for e in case["inputs"]}
-    got = TORCH_OPS[case["op"]](inputs, case["attributes"])
+    inputs = {e["name"]: a[e["name"]] for e in case["inputs"]}
+    got = run_node(case["op"], inputs, case["attributes"], "torch")
     for e in case["outputs"]:
-        g, w = got[e["name"]].numpy(), a[e["name"]]
+        g, w = got[e["name"]], a[e["name"]]
         if w.dtype.kind == "i":
             assert np.array_equal(g, w), e["name"]
         else:

@@ -270,3 +270,39 @@ def reference_ops() -> list[type[OpRun]]:
     """OpRun classes for all seven ``ai.tricons`` nodes, for ``ReferenceEvaluator(..., new_ops=...)``."""
     return [FurthestPointSample, GatherPoints, BallQuery, GroupPoints, ThreeNN, ThreeInterpolate,
             TriangleDescriptor]
+
+
+# ---------------------------------------------------------------------------
+# one entry point per node type (fixtures, tests)
+# ---------------------------------------------------------------------------
+
+#: node type -> (input names, output names, attribute names), in ONNX order
+NODE_SIGNATURES = {
+    "FurthestPointSample": (("xyz",), ("idx",), ("npoint",)),
+    "GatherPoints": (("features", "idx"), ("out",), ()),
+    "BallQuery": (("xyz", "new_xyz"), ("idx",), ("radius", "nsample")),
+    "GroupPoints": (("features", "idx"), ("out",), ()),
+    "ThreeNN": (("unknown", "known"), ("dist", "idx"), ()),
+    "ThreeInterpolate": (("features", "idx", "weight"), ("out",), ()),
+    "TriangleDescriptor": (("query", "points"), ("phi", "knn_idx"), ("k",)),
+}
+
+
+def run_node(op_type: str, inputs: dict, attrs: dict, impl: str = "torch") -> dict:
+    """Evaluate one ``ai.tricons`` node on numpy inputs with the torch op (``impl="torch"``)
+    or the numpy reference (``impl="reference"``); returns numpy outputs by name."""
+    from . import ops
+
+    in_names, out_names, attr_names = NODE_SIGNATURES[op_type]
+    args = [inputs[n] for n in in_names]
+    extra = [attrs[a] for a in attr_names]
+    fn_name = {"FurthestPointSample": "furthest_point_sample", "GatherPoints": "gather_points",
+               "BallQuery": "ball_query", "GroupPoints": "group_points", "ThreeNN": "three_nn",
+               "ThreeInterpolate": "three_interpolate", "TriangleDescriptor": "triangle_descriptor"}[op_type]
+    if impl == "torch":
+        res = getattr(ops, fn_name)(*[torch.from_numpy(np.ascontiguousarray(a)) for a in args], *extra)
+        res = tuple(r.numpy() for r in (res if isinstance(res, tuple) else (res,)))
+    else:
+        res = getattr(ref, fn_name)(*args, *extra)
+        res = res if isinstance(res, tuple) else (res,)
+    return dict(zip(out_names, res))
