@@ -23,6 +23,7 @@
 pub mod ball_query;
 pub mod fps;
 pub mod gather;
+pub mod profile;
 pub mod three_nn;
 pub mod tract_glue;
 pub mod triangle;

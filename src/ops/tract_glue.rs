@@ -108,7 +108,7 @@ impl<T: CustomOp> EvalOp for TypedWrapper<T> {
     op_out_of_plan!();
 
     fn eval(&self, _ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
-        self.0.eval(inputs)
+        super::profile::timed(T::NAME, || self.0.eval(inputs))
     }
 }
 

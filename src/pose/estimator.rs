@@ -37,8 +37,42 @@ pub enum Skipped {
 /// Outcome for one instance.
 pub type InstanceOutcome = std::result::Result<PoseEstimate, Skipped>;
 
+/// The network inputs of one frame's instances ([`PoseEstimator::prepare`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PreparedFrame {
+    /// Inputs of the usable instances, in mask order (one batch).
+    pub inputs: Vec<PoseInput>,
+    /// Per mask: its index into `inputs`, or why it was skipped.
+    pub slots: Vec<std::result::Result<usize, Skipped>>,
+}
+
 /// A loaded pose model: card, preprocessing and an optimised tract plan with a symbolic
 /// instance batch (all instances of a frame run together).
+///
+/// Load once, estimate per frame:
+///
+/// ```no_run
+/// use std::path::Path;
+/// use tricons::pose::PoseEstimator;
+/// use tricons::recording::open_recording;
+///
+/// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// let estimator = PoseEstimator::load(Path::new("models/tricons-pose.card.json"))?;
+/// let rec = open_recording(Path::new("tests/data/synthnocs-demo"))?;
+/// let frame = rec.read_frame(0)?;
+/// // One boolean mask per object (frame-sized, row-major), e.g. from the segmenter;
+/// // here the recording's ground truth.
+/// let masks = rec.read_annotations(0)?.and_then(|a| a.instance_masks()).unwrap_or_default();
+/// let masks: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+/// for outcome in estimator.estimate(&frame, &masks, 0)? {
+///     match outcome {
+///         Ok(pose) => println!("t = {:?} m, size = {:?} m", pose.camera_from_object.translation_m, pose.size_m),
+///         Err(skipped) => println!("no estimate: {skipped:?}"),
+///     }
+/// }
+/// # Ok(())
+/// # }
+/// ```
 pub struct PoseEstimator {
     card: ModelCard,
     card_path: PathBuf,
@@ -91,25 +125,40 @@ impl PoseEstimator {
     }
 
     /// Estimate every instance of `frame` given its masks (row-major, frame-sized), in one
-    /// batched run. Point sampling draws from `Rng::from_words(&[seed, i])` for instance `i`.
+    /// batched run: [`Self::prepare`], then [`Self::run_inputs`]. Outcomes come in mask order.
     pub fn estimate(&self, frame: &RgbdFrame, masks: &[&[bool]], seed: u64) -> Result<Vec<InstanceOutcome>> {
+        let prepared = self.prepare(frame, masks, seed)?;
+        let mut estimates = self.run_inputs(&prepared.inputs)?.into_iter();
+        Ok(prepared
+            .slots
+            .into_iter()
+            .map(|slot| match slot {
+                Ok(_) => estimates.next().unwrap_or(Err(Skipped::NonFiniteOutput)),
+                Err(why) => Err(why),
+            })
+            .collect())
+    }
+
+    /// The network inputs of every usable instance of `frame`, exactly as training built
+    /// them. Point sampling draws from `Rng::from_words(&[seed, i])` for instance `i`.
+    pub fn prepare(&self, frame: &RgbdFrame, masks: &[&[bool]], seed: u64) -> Result<PreparedFrame> {
         let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
-        let mut outcomes: Vec<InstanceOutcome> = Vec::with_capacity(masks.len());
-        let (mut inputs, mut batch) = (Vec::new(), Vec::new());
+        let mut prepared = PreparedFrame { inputs: Vec::new(), slots: Vec::with_capacity(masks.len()) };
         for (i, mask) in masks.iter().enumerate() {
             if mask.len() != w * h {
                 return Err(Error::InvalidArgument(format!("mask {i} has {} pixels, the frame {w}x{h}", mask.len())));
             }
             let Some(prep) = prepare_instance(&frame.depth, mask, &self.cfg) else {
-                outcomes.push(Err(Skipped::EmptyMask));
+                prepared.slots.push(Err(Skipped::EmptyMask));
                 continue;
             };
             if prep.n_valid() <= self.cfg.min_valid_pixels {
-                outcomes.push(Err(Skipped::TooFewValidPixels(prep.n_valid())));
+                prepared.slots.push(Err(Skipped::TooFewValidPixels(prep.n_valid())));
                 continue;
             }
             let idx = sample_indices(prep.n_valid(), self.cfg.n_points, &mut Rng::from_words(&[seed, i as u64]));
-            inputs.push(build_input(
+            prepared.slots.push(Ok(prepared.inputs.len()));
+            prepared.inputs.push(build_input(
                 &frame.color,
                 frame.depth.depth_scale_m,
                 &frame.intrinsics,
@@ -117,13 +166,8 @@ impl PoseEstimator {
                 &idx,
                 &self.cfg,
             ));
-            batch.push(i);
-            outcomes.push(Err(Skipped::EmptyMask)); // placeholder, replaced below
         }
-        for (i, outcome) in batch.into_iter().zip(self.run_inputs(&inputs)?) {
-            outcomes[i] = outcome;
-        }
-        Ok(outcomes)
+        Ok(prepared)
     }
 
     /// Run the graph on prepared inputs (one batch), decoding R, t, s and keypoints.

@@ -9,4 +9,4 @@ pub mod estimator;
 pub mod preprocess;
 
 pub use card::ModelCard;
-pub use estimator::{InstanceOutcome, PoseEstimate, PoseEstimator, Skipped};
+pub use estimator::{InstanceOutcome, PoseEstimate, PoseEstimator, PreparedFrame, Skipped};

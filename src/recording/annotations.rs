@@ -61,6 +61,15 @@ pub struct FrameAnnotations {
     pub nocs: Option<NocsMap>,
 }
 
+impl FrameAnnotations {
+    /// One row-major boolean mask per instance, in [`Self::instances`] order; `None`
+    /// without a mask image.
+    pub fn instance_masks(&self) -> Option<Vec<Vec<bool>>> {
+        let label = self.mask.as_ref()?;
+        Some(self.instances.iter().map(|g| label.data.iter().map(|&v| v == g.id).collect()).collect())
+    }
+}
+
 /// The per-frame ground-truth JSON file of the tricons recording format.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct AnnotationsFile {

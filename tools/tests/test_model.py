@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from tricons_pose.config import ModelConfig
-from tricons_pose.image_encoder import DinoV2Encoder, SmallCNN, gather_pixel_features
+from tricons_pose.image_encoder import (DinoV2Encoder, SmallCNN, bilinear_matrix, gather_pixel_features,
+                                        resize_separable)
 from tricons_pose.losses import compute_losses
 from tricons_pose.model import (PairwiseEmbedding, TriangleEmbedding, TriConsPose,
                                 global_triangle_phi, pairwise_descriptor, sample_augmentation)
@@ -193,6 +194,38 @@ def test_dinov2_default_shapes_match_vit_s14():
     assert enc.vit_input == 196 and enc.grid == 14
     n = sum(v.numel() for v in sd.values())
     assert 21_000_000 < n < 23_000_000  # ViT-S/14: ~22.1 M
+
+
+@pytest.mark.parametrize("h_in,w_in,h_out,w_out", [(192, 192, 196, 196), (14, 14, 192, 192), (7, 9, 5, 20), (8, 8, 8, 8)])
+def test_separable_bilinear_equals_interpolate(h_in, w_in, h_out, w_out):
+    import torch.nn.functional as F
+
+    x = torch.randn(2, 3, h_in, w_in, dtype=torch.float64)
+    want = F.interpolate(x, size=(h_out, w_out), mode="bilinear", align_corners=False)
+    got = resize_separable(x, bilinear_matrix(h_in, h_out).double(), bilinear_matrix(w_in, w_out).double())
+    assert got.shape == want.shape
+    assert torch.allclose(got, want, atol=1e-6)  # matrices are float32: ~1e-7 relative
+    # rows are convex combinations of at most two inputs
+    a = bilinear_matrix(h_in, h_out)
+    assert torch.allclose(a.sum(1), torch.ones(h_out)) and int((a != 0).sum(1).max()) <= 2
+
+
+def test_dinov2_encoder_resizes_as_interpolate_and_keeps_its_state_dict_keys():
+    import torch.nn.functional as F
+
+    torch.manual_seed(0)
+    enc = DinoV2Encoder(8, 28, patch=14, dim=16, depth=1, heads=2, mlp_ratio=2.0, pos_grid=3)
+    assert not any(k.startswith(("to_vit", "to_crop")) for k in enc.state_dict())
+    enc.eval()
+    x = torch.randn(2, 3, 28, 28)
+    fm = enc.proj(enc.vit(x).transpose(1, 2).reshape(2, 16, 2, 2))
+    want = F.interpolate(fm, size=(28, 28), mode="bilinear", align_corners=False)
+    assert torch.allclose(enc(x), want, atol=1e-5)
+    enc30 = DinoV2Encoder(8, 30, patch=14, dim=16, depth=1, heads=2, mlp_ratio=2.0, pos_grid=3).eval()
+    x30 = torch.randn(1, 3, 30, 30)
+    assert enc30.vit_input == 28 and enc30(x30).shape == (1, 8, 30, 30)
+    with pytest.raises(ValueError, match="crop"):
+        enc30(torch.randn(1, 3, 32, 32))
 
 
 # -------------------------------------------------------------------------- model

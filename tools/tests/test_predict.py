@@ -56,3 +56,29 @@ def test_predictions_cover_every_frame_and_evaluate(tmp_path, recording, tricons
     assert res.returncode == 0, res.stderr
     means = json.loads(report.read_text())["mean"]
     assert set(means) >= {"IoU25", "IoU50", "IoU75", "5deg2cm", "5deg5cm", "10deg2cm", "10deg5cm"}
+
+
+def test_tricons_rng_reproduces_the_committed_sequences():
+    """The Python port of the runtime RNG still produces tests/fixtures/rng/sequences.json
+    (which cargo test checks against the Rust RNG)."""
+    import json
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    sys.path.insert(0, str(root / "tools" / "golden"))
+    from make_rng_fixtures import build
+
+    committed = json.loads((root / "tests" / "fixtures" / "rng" / "sequences.json").read_text())
+    assert build() == committed
+
+
+def test_tricons_sampler_draws_without_replacement_when_possible():
+    from tricons_pose.data import sample_indices
+    from tricons_pose.tricons_rng import instance_rng
+
+    idx = sample_indices(300, 64, instance_rng(0, 3, 1))
+    assert len(set(idx.tolist())) == 64 and idx.max() < 300
+    again = sample_indices(300, 64, instance_rng(0, 3, 1))
+    assert (idx == again).all()
+    assert not (idx == sample_indices(300, 64, instance_rng(0, 3, 2))).all()

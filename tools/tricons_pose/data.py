@@ -191,8 +191,14 @@ def remap_choose(choose: np.ndarray, side: int, crop_size: int) -> np.ndarray:
     return (row * crop_size // side) * crop_size + (col * crop_size // side)
 
 
-def sample_indices(n_valid: int, n_points: int, rng: np.random.Generator) -> np.ndarray:
-    """``rng.choice(n_valid, n_points, replace=n_valid < n_points)``: the only draw for sampling."""
+def sample_indices(n_valid: int, n_points: int, rng) -> np.ndarray:
+    """``rng.choice(n_valid, n_points, replace=n_valid < n_points)``: the only draw for sampling.
+
+    ``rng`` is a ``numpy.random.Generator`` (training) or a
+    :class:`tricons_rng.TriconsRng`, which draws exactly as ``tricons replay`` does.
+    """
+    if hasattr(rng, "sample_indices"):
+        return rng.sample_indices(n_valid, n_points)
     return rng.choice(n_valid, n_points, replace=n_valid < n_points)
 
 

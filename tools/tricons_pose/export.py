@@ -10,6 +10,13 @@ Random weights of a configuration (speed and memory work, e.g. the paper size)::
 
     python -m tricons_pose.export --config paper --random-init 0 --out ../data/models/tricons-pose-paper.onnx
 
+The same network with standard ONNX ops in place of the ``ai.tricons`` nodes
+(:mod:`ops_standard`; for onnxruntime, e.g. in the benchmark; checked against
+PyTorch with onnxruntime instead of the reference evaluator)::
+
+    python -m tricons_pose.export --checkpoint ../models/checkpoints/tricons-pose-shipped/checkpoint.pt \
+        --standard-ops --out ../data/models/tricons-pose-standard.onnx
+
 Writes the ``.onnx`` file and ``<stem>.card.json`` beside it (both atomically:
 temporary file, then rename). The graph takes a dynamic instance batch::
 
@@ -28,6 +35,7 @@ PyTorch on a seeded random batch; the differences go into the card.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import io
 import json
@@ -45,6 +53,7 @@ from torch import Tensor, nn
 from .config import ModelConfig
 from .data import CROP_STEP, IMAGENET_MEAN, IMAGENET_STD, MAX_CROP, MIN_VALID_PIXELS
 from .model import TriConsPose
+from .ops_standard import standard_ops
 from .onnx_export_ops import CUSTOM_OPSETS, DOMAIN, DOMAIN_VERSION, OPSET, register_symbolics
 from .recording import CLASSES
 
@@ -95,19 +104,32 @@ def example_inputs(cfg: ModelConfig, batch: int, seed: int) -> Dict[str, Tensor]
     return {"rgb": rgb, "pts": pts.float(), "choose": choose}
 
 
-def to_onnx_bytes(model: TriConsPose, cfg: ModelConfig) -> bytes:
-    """The serialised ONNX model (TorchScript exporter, opset 17, dynamic batch)."""
+def to_onnx_bytes(model: TriConsPose, cfg: ModelConfig, standard: bool = False) -> bytes:
+    """The serialised ONNX model (TorchScript exporter, opset 17, dynamic batch).
+
+    ``standard``: export inside :func:`ops_standard.standard_ops` (no ``ai.tricons`` nodes).
+    """
     register_symbolics(OPSET)
     wrapper = ExportWrapper(model).eval()
     x = example_inputs(cfg, 2, 0)
     dyn = {name: {0: BATCH_DIM} for name in INPUT_NAMES + OUTPUT_NAMES}
     buf = io.BytesIO()
-    with warnings.catch_warnings(), torch.no_grad():
+    swap = standard_ops() if standard else contextlib.nullcontext()
+    with warnings.catch_warnings(), torch.no_grad(), swap:
         warnings.simplefilter("ignore")  # the TorchScript exporter is deprecated; it is the one with custom symbolics
         torch.onnx.export(wrapper, tuple(x[k] for k in INPUT_NAMES), buf, dynamo=False, opset_version=OPSET,
-                          custom_opsets=CUSTOM_OPSETS, input_names=list(INPUT_NAMES),
+                          custom_opsets=None if standard else CUSTOM_OPSETS, input_names=list(INPUT_NAMES),
                           output_names=list(OUTPUT_NAMES), dynamic_axes=dyn, do_constant_folding=True)
     return _fix_output_shapes(buf.getvalue(), cfg)
+
+
+def onnxruntime_run(onnx_bytes: bytes, inputs: Dict[str, Tensor]) -> Dict[str, np.ndarray]:
+    """Evaluate a standard-op graph with onnxruntime (CPU)."""
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(onnx_bytes, providers=["CPUExecutionProvider"])
+    outs = sess.run(list(OUTPUT_NAMES), {k: inputs[k].numpy() for k in INPUT_NAMES})
+    return dict(zip(OUTPUT_NAMES, outs))
 
 
 def _fix_output_shapes(onnx_bytes: bytes, cfg: ModelConfig) -> bytes:
@@ -150,19 +172,22 @@ def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     return np.degrees(2.0 * np.arcsin(np.clip(d / np.sqrt(8.0), 0.0, 1.0)))
 
 
-def check_export(model: TriConsPose, cfg: ModelConfig, onnx_bytes: bytes, batch: int = 3, seed: int = 1) -> dict:
-    """Compare PyTorch and the reference evaluation of the graph on a seeded batch (batch != export batch)."""
+def check_export(model: TriConsPose, cfg: ModelConfig, onnx_bytes: bytes, batch: int = 3, seed: int = 1,
+                 standard: bool = False) -> dict:
+    """Compare PyTorch and the reference evaluation of the graph on a seeded batch (batch != export batch);
+    a ``standard`` graph is evaluated with onnxruntime."""
     import onnx
 
     onnx.checker.check_model(onnx.load_from_string(onnx_bytes))
     x = example_inputs(cfg, batch, seed)
     with torch.no_grad():
         ref = {k: v.numpy() for k, v in model(x).items()}
-    got = reference_run(onnx_bytes, x)
+    got = onnxruntime_run(onnx_bytes, x) if standard else reference_run(onnx_bytes, x)
     diffs = {k: float(np.max(np.abs(got[k].astype(np.float64) - ref[k].astype(np.float64)))) for k in OUTPUT_NAMES}
     return {
         "batch": batch,
         "seed": seed,
+        "evaluator": "onnxruntime" if standard else "onnx.reference + tricons_pose.ops_reference",
         "max_abs_diff": diffs,
         "max_rotation_diff_deg": float(rotation_angle_deg(got["R"], ref["R"]).max()),
     }
@@ -292,6 +317,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="a `tricons eval --json` report to put in the card (repeatable), e.g. published=...")
     p.add_argument("--training-note", help="free text for the card (data command, machine, wall time)")
     p.add_argument("--no-check", action="store_true", help="skip the reference-evaluator comparison")
+    p.add_argument("--standard-ops", action="store_true",
+                   help="standard ONNX ops in place of the ai.tricons nodes (for onnxruntime; FPS unrolled)")
     args = p.parse_args(argv)
 
     if args.config is not None:
@@ -309,8 +336,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         weights = _weights_from_checkpoint(ck, args.checkpoint, args.training_note)
     metrics = _parse_metrics(args.metrics)
 
-    onnx_bytes = to_onnx_bytes(model, cfg)
-    check = None if args.no_check else check_export(model, cfg, onnx_bytes)
+    onnx_bytes = to_onnx_bytes(model, cfg, args.standard_ops)
+    check = None if args.no_check else check_export(model, cfg, onnx_bytes, standard=args.standard_ops)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_params = sum(t.numel() for t in model.parameters())
@@ -319,7 +346,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_atomic(card_path(out), (json.dumps(card, indent=2) + "\n").encode("utf-8"))
     msg = f"{out} ({len(onnx_bytes) / 1e6:.2f} MB, {n_params} parameters) + {card_path(out).name}"
     if check:
-        msg += f"; reference-evaluator check: max |dR| {check['max_rotation_diff_deg']:.2e} deg, " \
+        msg += f"; {check['evaluator'].split()[0]} check: max |dR| {check['max_rotation_diff_deg']:.2e} deg, " \
                f"max |dt| {check['max_abs_diff']['t']:.2e} m"
     print(msg)
     return 0

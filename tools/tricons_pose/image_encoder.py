@@ -99,6 +99,28 @@ def _upsample_to(y: Tensor, size) -> Tensor:
     return F.interpolate(y, size=(h, w), mode="bilinear", align_corners=False)
 
 
+def bilinear_matrix(n_in: int, n_out: int) -> Tensor:
+    """(n_out, n_in) float32 matrix A with ``A @ v`` == 1-D bilinear (half-pixel,
+    ``align_corners=False``, no antialias) resampling of v from n_in to n_out samples.
+
+    Bilinear resizing is separable, so ``A_h @ x @ A_w^T`` equals
+    ``F.interpolate(x, size=..., mode="bilinear", align_corners=False)``; computed by
+    resampling the basis vectors, in float64.
+    """
+    basis = torch.eye(n_in, dtype=torch.float64).reshape(n_in, 1, 1, n_in)
+    out = F.interpolate(basis, size=(1, n_out), mode="bilinear", align_corners=False)
+    return out[:, 0, 0, :].transpose(0, 1).to(torch.float32).contiguous()
+
+
+def resize_separable(x: Tensor, a_h: Tensor, a_w: Tensor) -> Tensor:
+    """(B, C, H, W) -> (B, C, H', W') as ``a_h @ x @ a_w^T`` (:func:`bilinear_matrix`).
+
+    Exports as two MatMuls with constant matrices: no Resize whose sizes come from
+    the input's symbolic-batch shape (which tract 0.23 cannot evaluate at run time).
+    """
+    return torch.matmul(torch.matmul(a_h.to(x), x), a_w.to(x).transpose(0, 1))
+
+
 # ------------------------------------------------------------------------- DINOv2
 class _PatchEmbed(nn.Module):
     def __init__(self, patch: int, dim: int):
@@ -255,18 +277,22 @@ class DinoV2Encoder(nn.Module):
         self.vit = DinoV2ViT(patch, dim, depth, heads, mlp_ratio, pos_grid, grid=g)
         self.proj = nn.Conv2d(dim, out_channels, 1)
         self.frozen = False
+        # the two bilinear resizes as constant separable matrices (non-persistent:
+        # checkpoints are unchanged); crop -> ViT input and token grid -> crop
+        self.register_buffer("to_vit", bilinear_matrix(crop_size, self.vit_input), persistent=False)
+        self.register_buffer("to_crop", bilinear_matrix(g, crop_size), persistent=False)
 
     def forward(self, x: Tensor) -> Tensor:
         """(B, 3, crop, crop) ImageNet-normalised -> (B, out_channels, crop, crop)."""
         if self.vit_input != x.shape[-1] or self.vit_input != x.shape[-2]:
-            x = F.interpolate(x, size=(self.vit_input, self.vit_input), mode="bilinear",
-                              align_corners=False)
+            if x.shape[-1] != self.crop_size or x.shape[-2] != self.crop_size:
+                raise ValueError(f"expected a {self.crop_size}x{self.crop_size} crop, got {tuple(x.shape[-2:])}")
+            x = resize_separable(x, self.to_vit, self.to_vit)
         tok = self.vit(x)                                   # (B, g*g, dim)
         B, D = tok.shape[0], tok.shape[-1]
         fm = tok.transpose(1, 2).reshape(B, D, self.grid, self.grid)
         fm = self.proj(fm)
-        return F.interpolate(fm, size=(self.crop_size, self.crop_size), mode="bilinear",
-                             align_corners=False)
+        return resize_separable(fm, self.to_crop, self.to_crop)
 
     def freeze(self) -> None:
         """Freeze the ViT (the 1x1 projection stays trainable)."""

@@ -403,8 +403,11 @@ def _angle(u: Tensor, v: Tensor) -> Tensor:
 
 
 def _pair_indices(k: int, device) -> tuple[Tensor, Tensor]:
-    ij = torch.triu_indices(k, k, offset=1, device=device)  # row-major (a, b), a < b
-    return ij[0], ij[1]
+    """Row-major pairs (a, b), a < b, as constant index tensors (exportable, unlike triu_indices)."""
+    pairs = [(a, b) for a in range(k) for b in range(a + 1, k)]
+    ia = torch.tensor([a for a, _ in pairs], dtype=torch.int64, device=device)
+    ib = torch.tensor([b for _, b in pairs], dtype=torch.int64, device=device)
+    return ia, ib
 
 
 def triangle_descriptor_torch(query: Tensor, points: Tensor, knn_idx: Tensor) -> Tensor:

@@ -26,6 +26,7 @@ import torch
 from .config import ModelConfig
 from .data import InstanceDataset, make_sample
 from .model import TriConsPose
+from .tricons_rng import instance_rng
 
 MIN_VALID_PIXELS = 16
 """An instance needs more than this many valid pixels to be estimated."""
@@ -44,9 +45,14 @@ def load_model(path: str | os.PathLike) -> tuple[TriConsPose, ModelConfig]:
 @torch.no_grad()
 def predict_recording(
     model: TriConsPose, cfg: ModelConfig, data: str | os.PathLike, batch_size: int = 32, seed: int = 0,
-    cache_dir: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike | None = None, sampler: str = "numpy",
 ) -> list[dict]:
     """Predictions for every frame of recording ``data``, in frame order.
+
+    ``sampler="numpy"`` samples points as training does (``default_rng((seed, 0, i))``
+    for instance ``i`` of the recording); ``sampler="tricons"`` draws exactly the
+    points ``tricons replay --seed seed`` draws (:mod:`tricons_rng`), so the two
+    runtimes see identical inputs.
 
     ``cache_dir`` keeps the decoded, cropped instances (as in training) so that
     evaluating several checkpoints on one recording decodes its PNGs once.
@@ -62,10 +68,8 @@ def predict_recording(
     per_frame: dict[int, list[dict]] = {}
     for start in range(0, len(usable), batch_size):
         idx = usable[start : start + batch_size]
-        samples = [
-            make_sample(ds.prepared(i), cfg.n_points, cfg.crop_size, np.random.default_rng((seed, 0, i)), None)
-            for i in idx
-        ]
+        samples = [make_sample(ds.prepared(i), cfg.n_points, cfg.crop_size, _rng(ds, i, seed, sampler), None)
+                   for i in idx]
         inputs = {k: torch.stack([s[k] for s in samples]) for k in ("rgb", "pts", "choose")}
         out = model(inputs)
         for b, i in enumerate(idx):
@@ -86,6 +90,15 @@ def predict_recording(
     ]
 
 
+def _rng(ds: InstanceDataset, i: int, seed: int, sampler: str):
+    if sampler == "numpy":
+        return np.random.default_rng((seed, 0, i))
+    if sampler == "tricons":
+        ref = ds.index[i]
+        return instance_rng(seed, ref.frame, ref.pos)
+    raise ValueError(f"unknown sampler {sampler!r} (numpy or tricons)")
+
+
 def write_jsonl(path: str | os.PathLike, frames: list[dict]) -> None:
     """Write predictions atomically (temporary file, then rename)."""
     path = Path(path)
@@ -104,13 +117,15 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", required=True, help="predictions file to write (JSON Lines)")
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--seed", type=int, default=0, help="seed of the point sampling")
+    p.add_argument("--sampler", choices=("numpy", "tricons"), default="numpy",
+                   help="point sampling: numpy (as in training) or tricons (the points tricons replay draws)")
     p.add_argument("--cache-dir", help="cache of decoded instances (speeds up repeated evaluations)")
     p.add_argument("--threads", type=int, default=0, help="torch.set_num_threads (0: all cores)")
     args = p.parse_args(argv)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     model, cfg = load_model(args.checkpoint)
-    frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed, args.cache_dir)
+    frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed, args.cache_dir, args.sampler)
     write_jsonl(args.out, frames)
     n = sum(len(f["instances"]) for f in frames)
     print(f"{n} instances in {len(frames)} frames -> {args.out}")

@@ -80,11 +80,9 @@ pub fn run(args: Args) -> Result<()> {
                 rec.describe()
             );
         };
-        let Some(label) = &ann.mask else {
+        let Some(masks) = ann.instance_masks() else {
             bail!("frame {} of {} has annotations but no instance mask", rec.frame_id(i), rec.describe());
         };
-        let masks: Vec<Vec<bool>> =
-            ann.instances.iter().map(|g| label.data.iter().map(|&v| v == g.id).collect()).collect();
         let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
         let outcomes = estimator.estimate(&frame, &refs, tricons::synth::rng::mix_seed(&[args.seed, i as u64]))?;
         let mut instances = Vec::new();
