@@ -105,6 +105,44 @@ impl DepthImage {
         DepthImage { width, height, data: vec![0; width as usize * height as usize], depth_scale_m }
     }
 
+    /// Quantise a float depth image in metres (ROS `32FC1`, simulators) to `depth_scale_m`
+    /// units, row-major. A value that is not a measurement becomes 0 ("no measurement"): NaN,
+    /// infinite, zero or negative, or beyond the 16-bit range at this scale. Returns the
+    /// image and how many pixels were invalidated that way.
+    pub fn from_metres(
+        width: u32,
+        height: u32,
+        depth_m: &[f32],
+        depth_scale_m: f64,
+    ) -> crate::error::Result<(DepthImage, usize)> {
+        let n = width as usize * height as usize;
+        if depth_m.len() != n {
+            return Err(crate::error::Error::InvalidArgument(format!(
+                "float depth has {} values, a {width}x{height} image needs {n}",
+                depth_m.len()
+            )));
+        }
+        if !(depth_scale_m.is_finite() && depth_scale_m > 0.0) {
+            return Err(crate::error::Error::InvalidArgument(format!(
+                "depth scale {depth_scale_m} m/unit is not positive"
+            )));
+        }
+        let mut invalid = 0usize;
+        let data = depth_m
+            .iter()
+            .map(|&d| {
+                let units = (f64::from(d) / depth_scale_m).round();
+                if units.is_finite() && units >= 1.0 && units <= f64::from(u16::MAX) {
+                    units as u16
+                } else {
+                    invalid += usize::from(d != 0.0);
+                    0
+                }
+            })
+            .collect();
+        Ok((DepthImage { width, height, data, depth_scale_m }, invalid))
+    }
+
     /// Depth in metres at (u, v), or `None` where there is no measurement.
     pub fn depth_m(&self, u: u32, v: u32) -> Option<f64> {
         let raw = self.data[v as usize * self.width as usize + u as usize];

@@ -5,8 +5,9 @@ mod common;
 
 use common::npy::{Case, cases};
 use tricons::ops::{
-    OpError, ball_query::kernel::ball_query, fps::kernel::furthest_point_sample, gather::kernel as gather,
-    knn_brute_force, squared_distance, three_nn::kernel as nn, triangle::kernel::triangle_descriptor,
+    KnnIndex, OpError, PointsSoa, ball_query::kernel::ball_query, fps::kernel::furthest_point_sample,
+    gather::kernel as gather, knn_brute_force, squared_distance, three_nn::kernel as nn,
+    triangle::kernel::triangle_descriptor,
 };
 use tricons::synth::rng::Rng;
 
@@ -221,6 +222,72 @@ fn knn_matches_a_stable_sort_including_ties_and_nan() {
             da.total_cmp(&db).then(a.cmp(&b))
         });
         assert_eq!(idx, order[..k], "k = {k}");
+        // the vectorised kernel the ops use is the scalar reference, bit for bit
+        let (mut idx_soa, mut d2_soa) = (vec![0usize; k], vec![0f32; k]);
+        PointsSoa::new(&pts).knn(&q, k, &mut idx_soa, &mut d2_soa);
+        assert_eq!(idx_soa, idx, "k = {k}");
+        assert_eq!(
+            d2_soa.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+            d2.iter().map(|d| d.to_bits()).collect::<Vec<_>>()
+        );
+    }
+}
+
+#[test]
+fn kd_tree_knn_equals_the_scalar_reference_with_duplicates_and_lattice_ties() {
+    let mut rng = Rng::new(5);
+    for (n, k) in [(256usize, 3usize), (600, 8), (1024, 16)] {
+        // depth-like lattice (exact ties between different points) plus duplicated samples
+        // (sampling with replacement) plus a smooth random part
+        let mut pts: Vec<f32> = (0..n)
+            .flat_map(|i| [(i % 23) as f32 * 0.002, (i / 23) as f32 * 0.002, 0.7 + (rng.below(4) as f32) * 0.001])
+            .collect();
+        for j in (0..n).step_by(5) {
+            let src = rng.below(n);
+            let p = [pts[3 * src], pts[3 * src + 1], pts[3 * src + 2]];
+            pts[3 * j..3 * j + 3].copy_from_slice(&p);
+        }
+        let mut index = KnnIndex::new(&pts, n);
+        assert!(index.uses_tree(), "{n} points get a tree");
+        for qi in 0..n {
+            // the points themselves (distance 0, duplicates), lattice midpoints (ties), random
+            let q = match qi % 3 {
+                0 => [pts[3 * qi], pts[3 * qi + 1], pts[3 * qi + 2]],
+                1 => [pts[3 * qi] + 0.001, pts[3 * qi + 1], pts[3 * qi + 2]],
+                _ => [rng.range(0.0, 0.05) as f32, rng.range(0.0, 0.09) as f32, 0.7],
+            };
+            let (mut a, mut da, mut b, mut db) = (vec![0; k], vec![0f32; k], vec![0; k], vec![0f32; k]);
+            knn_brute_force(&q, &pts, k, &mut a, &mut da);
+            index.knn(&q, k, &mut b, &mut db);
+            assert_eq!((a, da), (b, db), "n {n}, query {qi}");
+        }
+    }
+    // NaN coordinates: no tree, the scan's NaN rule
+    let mut pts: Vec<f32> = (0..300).flat_map(|i| [i as f32, 0.0, 0.0]).collect();
+    pts[30] = f32::NAN;
+    assert!(!KnnIndex::new(&pts, 300).uses_tree());
+    assert!(!KnnIndex::new(&pts[..3 * 100], 300).uses_tree(), "small sets are scanned");
+    let finite: Vec<f32> = (0..300).flat_map(|i| [i as f32, 0.0, 0.0]).collect();
+    assert!(KnnIndex::new(&finite, 300).uses_tree() && !KnnIndex::new(&finite, 8).uses_tree(), "few queries: no tree");
+}
+
+#[test]
+fn vectorised_knn_equals_the_scalar_reference_on_grid_clouds() {
+    // depth-image-like clouds: points on a pixel lattice, where exact distance ties happen
+    let mut rng = Rng::new(11);
+    for (n, k) in [(3usize, 3usize), (64, 3), (300, 8), (1024, 16)] {
+        let pts: Vec<f32> = (0..n)
+            .flat_map(|i| [(i % 17) as f32 * 0.002, (i / 17) as f32 * 0.002, 0.7 + (rng.below(3) as f32) * 0.001])
+            .collect();
+        let mut soa = PointsSoa::new(&pts);
+        assert_eq!(soa.len(), n);
+        for qi in (0..n).step_by(7) {
+            let q = [pts[3 * qi] + 0.001, pts[3 * qi + 1], pts[3 * qi + 2]];
+            let (mut a, mut da, mut b, mut db) = (vec![0; k], vec![0f32; k], vec![0; k], vec![0f32; k]);
+            knn_brute_force(&q, &pts, k, &mut a, &mut da);
+            soa.knn(&q, k, &mut b, &mut db);
+            assert_eq!((a, da), (b, db), "n {n}, query {qi}");
+        }
     }
 }
 

@@ -6,6 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::npy::cases;
+use tricons::frame::{DepthImage, RgbdFrame};
 use tricons::pose::preprocess::PoseInput;
 use tricons::pose::{PoseEstimator, Skipped};
 use tricons::recording::open_recording;
@@ -137,19 +138,90 @@ fn card_and_graph_mismatches_are_clear_errors() {
     assert!(err.contains("tricons-pose.onnx"), "{err}");
 }
 
+/// Replace the graph beside `card` by `bytes` and put their hash in the card.
+fn replace_graph(card: &Path, bytes: &[u8]) {
+    std::fs::write(card.with_file_name("tricons-pose.onnx"), bytes).unwrap();
+    let digest = {
+        use sha2::Digest;
+        sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect::<String>()
+    };
+    edit_card(card, |v| v["onnx"]["sha256"] = serde_json::json!(digest));
+}
+
 #[test]
 fn a_corrupt_graph_is_an_error_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let card = copy_model(dir.path());
-    let onnx = dir.path().join("tricons-pose.onnx");
-    let mut bytes = std::fs::read(&onnx).unwrap();
+    let mut bytes = std::fs::read(dir.path().join("tricons-pose.onnx")).unwrap();
     bytes.truncate(bytes.len() / 3);
-    std::fs::write(&onnx, &bytes).unwrap();
-    let digest = {
-        use sha2::Digest;
-        sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect::<String>()
-    };
-    edit_card(&card, |v| v["onnx"]["sha256"] = serde_json::json!(digest));
+    replace_graph(&card, &bytes);
     let err = PoseEstimator::load(&card).unwrap_err().to_string();
     assert!(err.contains("tricons-pose.onnx"), "{err}");
+}
+
+#[test]
+fn a_graph_with_an_operator_this_build_lacks_is_an_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let card = copy_model(dir.path());
+    // rename every TriangleDescriptor node to an op type nobody implements (same length,
+    // so the protobuf stays well-formed)
+    let bytes = std::fs::read(dir.path().join("tricons-pose.onnx")).unwrap();
+    let (from, to) = (b"TriangleDescriptor".as_slice(), b"TriangleDescripXYZ".as_slice());
+    let mut renamed = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i..].starts_with(from) {
+            renamed.extend_from_slice(to);
+            i += from.len();
+        } else {
+            renamed.push(bytes[i]);
+            i += 1;
+        }
+    }
+    assert_ne!(renamed, bytes, "the shipped graph has TriangleDescriptor nodes");
+    replace_graph(&card, &renamed);
+    let err = format!("{:#}", PoseEstimator::load(&card).unwrap_err());
+    assert!(err.contains("tricons-pose.onnx") && err.contains("TriangleDescripXYZ"), "{err}");
+}
+
+#[test]
+fn nan_depth_from_a_float_source_is_no_measurement() {
+    let est = shipped();
+    let rec = open_recording(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo")).unwrap();
+    let frame = rec.read_frame(0).unwrap();
+    let masks = rec.read_annotations(0).unwrap().and_then(|a| a.instance_masks()).unwrap();
+    let (w, h) = (frame.depth.width, frame.depth.height);
+    // the same depth as a float image in metres, as ROS 32FC1 or a simulator gives it
+    let metres: Vec<f32> =
+        frame.depth.data.iter().map(|&d| (f64::from(d) * frame.depth.depth_scale_m) as f32).collect();
+    let (round_trip, invalid) = DepthImage::from_metres(w, h, &metres, frame.depth.depth_scale_m).unwrap();
+    assert_eq!((round_trip.data.as_slice(), invalid), (frame.depth.data.as_slice(), 0));
+
+    // NaN over every second pixel of object 0 and all of object 1; infinities elsewhere
+    let mut poisoned = metres.clone();
+    let mut n_nan = 0;
+    for (p, (a, b)) in poisoned.iter_mut().zip(masks[0].iter().zip(&masks[1])) {
+        if (*a && n_nan % 2 == 0) || *b {
+            *p = f32::NAN;
+        }
+        n_nan += usize::from(*a);
+    }
+    poisoned[0] = f32::INFINITY;
+    poisoned[1] = -1.0;
+    let (depth, invalid) = DepthImage::from_metres(w, h, &poisoned, frame.depth.depth_scale_m).unwrap();
+    assert!(invalid > 2, "NaN, inf and negative depth are counted as invalidated");
+    let nan_frame = RgbdFrame { depth, ..frame.clone() };
+    let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+    let out = est.estimate(&nan_frame, &refs, 3).unwrap();
+    assert_eq!(out[1], Err(Skipped::TooFewValidPixels(0)), "an object under NaN depth is skipped");
+    let half = out[0].as_ref().expect("half the pixels of object 0 still have depth");
+    let full = est.estimate(&frame, &refs, 3).unwrap().swap_remove(0).unwrap();
+    let moved = (half.camera_from_object.translation_m - full.camera_from_object.translation_m).norm();
+    assert!(
+        half.size_m.iter().all(|v| v.is_finite()) && moved < 0.02,
+        "finite and near the full-depth estimate ({moved} m)"
+    );
+
+    assert!(DepthImage::from_metres(w, h, &metres[1..], 0.001).is_err(), "wrong length");
+    assert!(DepthImage::from_metres(w, h, &metres, f64::NAN).is_err(), "NaN scale");
 }

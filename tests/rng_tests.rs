@@ -4,7 +4,7 @@
 
 use serde_json::Value;
 use tricons::pose::preprocess::sample_indices;
-use tricons::synth::rng::{mix_seed, Rng};
+use tricons::synth::rng::{Rng, mix_seed};
 
 fn fixture() -> Value {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/rng/sequences.json");
@@ -63,7 +63,8 @@ fn sample_indices_match_the_python_port() {
     }
     // The per-instance stream of `tricons replay --seed s`: frame f, instance i.
     for case in f["instance_rng"].as_array().unwrap() {
-        let (s, fr, i) = (case["seed"].as_u64().unwrap(), case["frame"].as_u64().unwrap(), case["instance"].as_u64().unwrap());
+        let (s, fr, i) =
+            (case["seed"].as_u64().unwrap(), case["frame"].as_u64().unwrap(), case["instance"].as_u64().unwrap());
         let mut rng = Rng::from_words(&[mix_seed(&[s, fr]), i]);
         assert_eq!(sample_indices(50, 8, &mut rng), usizes(&case["indices"]), "seed {s} frame {fr} instance {i}");
     }

@@ -23,10 +23,13 @@
 pub mod ball_query;
 pub mod fps;
 pub mod gather;
+pub mod knn;
 pub mod profile;
 pub mod three_nn;
 pub mod tract_glue;
 pub mod triangle;
+
+pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
 pub const NODE_TYPES: [&str; 7] = [
@@ -119,47 +122,5 @@ pub(crate) fn checked_index(op: &'static str, index: i64, len: usize) -> OpResul
         Ok(index as usize)
     } else {
         Err(OpError::IndexOutOfRange { op, index, len })
-    }
-}
-
-/// Indices of the `k` points of `points` (`(n, 3)`) nearest to `query`, ascending by squared
-/// distance, ties to the lower index; also returns their squared distances.
-///
-/// Brute force with a bounded insertion buffer: `O(n k)`, the reference for the kNN of
-/// [`three_nn`] and [`triangle`]. `k` must be at most `n`.
-pub fn knn_brute_force(query: &[f32], points: &[f32], k: usize, idx: &mut [usize], d2: &mut [f32]) {
-    let n = points.len() / 3;
-    debug_assert!(k <= n && idx.len() >= k && d2.len() >= k);
-    let mut len = 0usize;
-    for j in 0..n {
-        let d = squared_distance(query, &points[3 * j..3 * j + 3]);
-        // NaN distances sort last (filled in below); strictly smaller than the current
-        // k-th keeps the lower index on ties
-        if d.is_nan() || (len == k && d >= d2[k - 1]) {
-            continue;
-        }
-        let mut pos = if len < k { len } else { k - 1 };
-        while pos > 0 && d < d2[pos - 1] {
-            d2[pos] = d2[pos - 1];
-            idx[pos] = idx[pos - 1];
-            pos -= 1;
-        }
-        d2[pos] = d;
-        idx[pos] = j;
-        if len < k {
-            len += 1;
-        }
-    }
-    // fewer than k comparable points (NaN coordinates): the NaN ones follow in index order
-    if len < k {
-        let mut next = 0usize;
-        while len < k {
-            if !idx[..len].contains(&next) {
-                idx[len] = next;
-                d2[len] = f32::NAN;
-                len += 1;
-            }
-            next += 1;
-        }
     }
 }

@@ -1,5 +1,6 @@
 //! The `tricons` command-line tool.
 
+mod bench;
 mod eval;
 mod inspect;
 mod progress;
@@ -32,6 +33,8 @@ enum Command {
     Inspect(inspect::Args),
     /// Estimate poses over a recording with the pose model (ground-truth masks for now).
     Replay(replay::Args),
+    /// Measure pose-model latency per object and per frame, with each custom op's share.
+    Bench(bench::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -42,6 +45,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => eval::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::Bench(args) => bench::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,6 +1,6 @@
 //! Scalar kernels of `ThreeNN` and `ThreeInterpolate` (one batch item).
 
-use crate::ops::{OpError, OpResult, check_len, checked_index, knn_brute_force};
+use crate::ops::{KnnIndex, OpError, OpResult, check_len, checked_index};
 
 /// Number of neighbours of `ThreeNN`.
 pub const NEIGHBOURS: usize = 3;
@@ -18,8 +18,9 @@ pub fn three_nn(unknown: &[f32], known: &[f32], dist: &mut [f32], idx: &mut [i64
     check_len("ThreeNN", "dist", dist.len(), 3 * n)?;
     check_len("ThreeNN", "idx", idx.len(), 3 * n)?;
     let (mut nn, mut d2) = ([0usize; NEIGHBOURS], [0f32; NEIGHBOURS]);
+    let mut index = KnnIndex::new(known, n);
     for ((q, d_row), i_row) in unknown.chunks_exact(3).zip(dist.chunks_exact_mut(3)).zip(idx.chunks_exact_mut(3)) {
-        knn_brute_force(q, known, NEIGHBOURS, &mut nn, &mut d2);
+        index.knn(q, NEIGHBOURS, &mut nn, &mut d2);
         for t in 0..NEIGHBOURS {
             d_row[t] = d2[t].sqrt();
             i_row[t] = nn[t] as i64;

@@ -1,6 +1,6 @@
 //! Scalar kernel of `TriangleDescriptor` (one batch item).
 
-use crate::ops::{OpError, OpResult, check_len, knn_brute_force};
+use crate::ops::{KnnIndex, OpError, OpResult, check_len};
 
 /// Epsilon added to squared norms before the square root (finite angles for zero-length sides).
 pub const NORM_EPS2: f64 = 1e-12;
@@ -30,9 +30,10 @@ pub fn triangle_descriptor(query: &[f32], points: &[f32], k: usize, phi: &mut [f
     let (mut nn, mut d2) = (vec![0usize; k], vec![0f32; k]);
     let mut angles = vec![[0f64; 3]; t_count];
     let mut areas = vec![0f64; t_count];
+    let mut index = KnnIndex::new(points, m);
     for i in 0..m {
         let q = &query[3 * i..3 * i + 3];
-        knn_brute_force(q, points, k, &mut nn, &mut d2);
+        index.knn(q, k, &mut nn, &mut d2);
         for (o, &j) in knn_idx[k * i..k * (i + 1)].iter_mut().zip(&nn) {
             *o = j as i64;
         }

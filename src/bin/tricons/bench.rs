@@ -1,0 +1,270 @@
+//! `tricons bench`: latency of the pose model per object and per frame, with the share of
+//! each custom operator (a benchmark, not a test: numbers go to docs/results.md).
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use tricons::atomic::write_atomic;
+use tricons::ops::profile;
+use tricons::pose::PoseEstimator;
+use tricons::recording::open_recording;
+use tricons::synth::rng::mix_seed;
+
+use crate::progress;
+use crate::replay::{DEFAULT_MODEL, DEFAULT_RECORDING};
+
+/// Arguments of `tricons bench`.
+#[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    tricons bench                                        # shipped model, demo recording\n  \
+    tricons bench --model data/models/tricons-pose-paper.card.json --runs 5 --json data/bench/paper.json\n\n\
+    Per object: the graph on one instance (batch 1). Per frame: preprocessing plus one batched run\n\
+    over all instances of a recording frame (ground-truth masks). Medians over --runs after --warmup;\n\
+    tract runs on one thread.")]
+pub struct Args {
+    /// Pose model: its card (`*.card.json`) or graph (`*.onnx`, card beside it).
+    #[arg(long, default_value = DEFAULT_MODEL)]
+    model: PathBuf,
+    /// Recording whose frames (with ground-truth masks) give the inputs.
+    #[arg(long, default_value = DEFAULT_RECORDING)]
+    recording: PathBuf,
+    /// Timed repetitions of each measurement.
+    #[arg(long, default_value_t = 20)]
+    runs: usize,
+    /// Untimed repetitions before timing.
+    #[arg(long, default_value_t = 2)]
+    warmup: usize,
+    /// Seed of the point sampling (as `tricons replay --seed`).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Also write the report as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// Latency statistics of one measurement, milliseconds.
+#[derive(Serialize)]
+struct Stats {
+    median_ms: f64,
+    p10_ms: f64,
+    p90_ms: f64,
+    samples: usize,
+}
+
+impl Stats {
+    fn of(durations: &[Duration]) -> Stats {
+        let mut ms: Vec<f64> = durations.iter().map(|d| d.as_secs_f64() * 1e3).collect();
+        ms.sort_by(f64::total_cmp);
+        let q = |p: f64| ms.get(((ms.len() - 1) as f64 * p).round() as usize).copied().unwrap_or(f64::NAN);
+        Stats { median_ms: q(0.5), p10_ms: q(0.1), p90_ms: q(0.9), samples: ms.len() }
+    }
+}
+
+/// One custom operator's share of the graph time.
+#[derive(Serialize)]
+struct OpShare {
+    node_type: &'static str,
+    calls_per_run: f64,
+    ms_per_run: f64,
+    share_of_graph: f64,
+}
+
+#[derive(Serialize)]
+struct Report {
+    runtime: &'static str,
+    model: String,
+    config_name: String,
+    n_points: usize,
+    crop_size: usize,
+    threads: usize,
+    machine: String,
+    load_s: f64,
+    per_object: Stats,
+    per_object_ops: Vec<OpShare>,
+    per_object_custom_share: f64,
+    frames: usize,
+    instances_per_frame: f64,
+    per_frame: Stats,
+    per_frame_preprocess: Stats,
+    per_frame_graph: Stats,
+    per_frame_ops: Vec<OpShare>,
+    per_frame_custom_share: f64,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
+    let t_load = Instant::now();
+    let estimator = PoseEstimator::load(&args.model).with_context(|| "loading the pose model (--model)")?;
+    let load_s = t_load.elapsed().as_secs_f64();
+    let cfg = estimator.preprocess_config().clone();
+    log::info!("model {} ({}) loaded in {load_s:.2} s", estimator.card_path().display(), estimator.card().config_name);
+
+    let mut frames = Vec::new();
+    for i in 0..rec.len() {
+        let frame = rec.read_frame(i)?;
+        let masks = rec.read_annotations(i)?.and_then(|a| a.instance_masks()).unwrap_or_default();
+        if !masks.is_empty() {
+            frames.push((i, frame, masks));
+        }
+    }
+    let first_input = frames
+        .iter()
+        .find_map(|(i, frame, masks)| {
+            let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+            estimator.prepare(frame, &refs, mix_seed(&[args.seed, *i as u64])).ok()?.inputs.into_iter().next()
+        })
+        .with_context(|| format!("{} has no frame with a usable instance mask", args.recording.display()))?;
+
+    profile::enable(true);
+    let bar = progress::bar((args.warmup + args.runs) * (1 + frames.len()), "bench");
+    // per object: batch of one
+    let one = [first_input];
+    for _ in 0..args.warmup {
+        estimator.run_inputs(&one)?;
+        bar.inc(1);
+    }
+    profile::reset();
+    let mut object_times = Vec::with_capacity(args.runs);
+    for _ in 0..args.runs {
+        let t = Instant::now();
+        estimator.run_inputs(&one)?;
+        object_times.push(t.elapsed());
+        bar.inc(1);
+    }
+    let (per_object_ops, per_object_custom_share) = op_shares(args.runs, &object_times);
+
+    // per frame: preprocessing + one batched run
+    let (mut frame_times, mut prep_times, mut graph_times, mut instances) = (vec![], vec![], vec![], 0usize);
+    for (i, frame, masks) in &frames {
+        let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+        for _ in 0..args.warmup {
+            estimator.estimate(frame, &refs, mix_seed(&[args.seed, *i as u64]))?;
+            bar.inc(1);
+        }
+    }
+    profile::reset();
+    for (i, frame, masks) in &frames {
+        let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+        for _ in 0..args.runs {
+            let t0 = Instant::now();
+            let prepared = estimator.prepare(frame, &refs, mix_seed(&[args.seed, *i as u64]))?;
+            let t1 = Instant::now();
+            estimator.run_inputs(&prepared.inputs)?;
+            let t2 = Instant::now();
+            prep_times.push(t1 - t0);
+            graph_times.push(t2 - t1);
+            frame_times.push(t2 - t0);
+            instances += prepared.inputs.len();
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    let (per_frame_ops, per_frame_custom_share) = op_shares(frame_times.len(), &graph_times);
+    profile::enable(false);
+
+    let card = estimator.card();
+    let report = Report {
+        runtime: "tract",
+        model: estimator.card_path().display().to_string(),
+        config_name: card.config_name.clone(),
+        n_points: cfg.n_points,
+        crop_size: cfg.crop_size,
+        threads: 1,
+        machine: machine(),
+        load_s,
+        per_object: Stats::of(&object_times),
+        per_object_ops,
+        per_object_custom_share,
+        frames: frames.len(),
+        instances_per_frame: instances as f64 / frame_times.len().max(1) as f64,
+        per_frame: Stats::of(&frame_times),
+        per_frame_preprocess: Stats::of(&prep_times),
+        per_frame_graph: Stats::of(&graph_times),
+        per_frame_ops,
+        per_frame_custom_share,
+    };
+    print_report(&report);
+    if let Some(path) = &args.json {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
+        log::info!("report written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// Per-op time per run and share of the total graph time, from the profile counters.
+fn op_shares(runs: usize, graph_times: &[Duration]) -> (Vec<OpShare>, f64) {
+    let graph_s: f64 = graph_times.iter().map(Duration::as_secs_f64).sum();
+    let ops: Vec<OpShare> = profile::snapshot()
+        .into_iter()
+        .filter(|o| o.calls > 0)
+        .map(|o| OpShare {
+            node_type: o.node_type,
+            calls_per_run: o.calls as f64 / runs as f64,
+            ms_per_run: o.total.as_secs_f64() * 1e3 / runs as f64,
+            share_of_graph: o.total.as_secs_f64() / graph_s,
+        })
+        .collect();
+    let total = ops.iter().map(|o| o.share_of_graph).sum();
+    (ops, total)
+}
+
+fn print_report(r: &Report) {
+    println!(
+        "tract, {} config (N {}, crop {}), 1 thread, {}; model loaded in {:.2} s",
+        r.config_name, r.n_points, r.crop_size, r.machine, r.load_s
+    );
+    println!(
+        "per object (batch 1): median {:.2} ms (p10 {:.2}, p90 {:.2}); custom ops {:.1}% of it",
+        r.per_object.median_ms,
+        r.per_object.p10_ms,
+        r.per_object.p90_ms,
+        100.0 * r.per_object_custom_share
+    );
+    println!(
+        "per frame ({} frames, {:.2} instances/frame): median {:.2} ms = preprocessing {:.2} + graph {:.2}; custom ops {:.1}% of the graph",
+        r.frames,
+        r.instances_per_frame,
+        r.per_frame.median_ms,
+        r.per_frame_preprocess.median_ms,
+        r.per_frame_graph.median_ms,
+        100.0 * r.per_frame_custom_share
+    );
+    println!(
+        "{:<20} {:>10} {:>12} {:>8}   {:>10} {:>8}",
+        "custom op", "calls/obj", "ms/object", "share", "ms/frame", "share"
+    );
+    for (o, f) in r.per_object_ops.iter().zip(&r.per_frame_ops) {
+        println!(
+            "{:<20} {:>10.0} {:>12.3} {:>7.1}%   {:>10.3} {:>7.1}%",
+            o.node_type,
+            o.calls_per_run,
+            o.ms_per_run,
+            100.0 * o.share_of_graph,
+            f.ms_per_run,
+            100.0 * f.share_of_graph
+        );
+    }
+}
+
+/// CPU model name and core count, for the report.
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    format!("{cpu}, {cores} cores")
+}
