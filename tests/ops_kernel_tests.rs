@@ -236,7 +236,7 @@ fn knn_matches_a_stable_sort_including_ties_and_nan() {
 #[test]
 fn kd_tree_knn_equals_the_scalar_reference_with_duplicates_and_lattice_ties() {
     let mut rng = Rng::new(5);
-    for (n, k) in [(256usize, 3usize), (600, 8), (1024, 16)] {
+    for (n, k) in [(512usize, 3usize), (600, 8), (1024, 16)] {
         // depth-like lattice (exact ties between different points) plus duplicated samples
         // (sampling with replacement) plus a smooth random part
         let mut pts: Vec<f32> = (0..n)
@@ -263,12 +263,12 @@ fn kd_tree_knn_equals_the_scalar_reference_with_duplicates_and_lattice_ties() {
         }
     }
     // NaN coordinates: no tree, the scan's NaN rule
-    let mut pts: Vec<f32> = (0..300).flat_map(|i| [i as f32, 0.0, 0.0]).collect();
+    let mut pts: Vec<f32> = (0..600).flat_map(|i| [i as f32, 0.0, 0.0]).collect();
     pts[30] = f32::NAN;
-    assert!(!KnnIndex::new(&pts, 300).uses_tree());
+    assert!(!KnnIndex::new(&pts, 600).uses_tree());
     assert!(!KnnIndex::new(&pts[..3 * 100], 300).uses_tree(), "small sets are scanned");
-    let finite: Vec<f32> = (0..300).flat_map(|i| [i as f32, 0.0, 0.0]).collect();
-    assert!(KnnIndex::new(&finite, 300).uses_tree() && !KnnIndex::new(&finite, 8).uses_tree(), "few queries: no tree");
+    let finite: Vec<f32> = (0..600).flat_map(|i| [i as f32, 0.0, 0.0]).collect();
+    assert!(KnnIndex::new(&finite, 600).uses_tree() && !KnnIndex::new(&finite, 8).uses_tree(), "few queries: no tree");
 }
 
 #[test]

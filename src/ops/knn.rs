@@ -168,10 +168,11 @@ impl<'a> KBest<'a> {
 }
 
 /// Point sets at least this large get a KD-tree when there are at least
-/// [`KD_TREE_MIN_QUERIES`] queries (benches/knn.rs, building included: the tree wins 1.1x at
-/// 256 points, 2.3-2.8x at 1024; the scan wins at 64 points, and for 32 queries in 512
-/// points the build is not paid back).
-pub const KD_TREE_MIN_POINTS: usize = 256;
+/// [`KD_TREE_MIN_QUERIES`] queries (benches/knn.rs, building and the exactness check
+/// included: 1.5-2.7x faster than the scan at 512-1024 points; at 256 points the two are
+/// within run-to-run noise of each other, at 64 points the scan wins, and for 32 queries
+/// the build is not paid back).
+pub const KD_TREE_MIN_POINTS: usize = 512;
 
 /// See [`KD_TREE_MIN_POINTS`].
 pub const KD_TREE_MIN_QUERIES: usize = 64;

@@ -172,10 +172,36 @@ impl PoseEstimator {
 
     /// Run the graph on prepared inputs (one batch), decoding R, t, s and keypoints.
     pub fn run_inputs(&self, inputs: &[PoseInput]) -> Result<Vec<InstanceOutcome>> {
-        let (n, s, b) = (self.cfg.n_points, self.cfg.crop_size, inputs.len());
-        if b == 0 {
+        if inputs.is_empty() {
             return Ok(Vec::new());
         }
+        let tensors = self.input_tensors(inputs)?;
+        let out = self.plan.run(tensors).map_err(|e| Error::Inference(format!("{e:#}")))?;
+        decode_outputs(&out, inputs.len())
+    }
+
+    /// Run the graph once on `inputs` timing every node: wall time per operator name
+    /// (tract's optimised op, e.g. `Conv`, `OptMatMul`, `ThreeNN`), largest first.
+    pub fn profile_nodes(&self, inputs: &[PoseInput]) -> Result<Vec<(String, std::time::Duration)>> {
+        let tensors = self.input_tensors(inputs)?;
+        let err = |e: TractError| Error::Inference(format!("{e:#}"));
+        let mut state = tract_onnx::tract_core::plan::SimpleState::new(&self.plan).map_err(err)?;
+        let mut per_op: std::collections::BTreeMap<String, std::time::Duration> = Default::default();
+        state
+            .run_plan_with_eval(tensors, |ctx, op_state, node, input| {
+                let start = std::time::Instant::now();
+                let out = tract_onnx::tract_core::plan::eval(ctx, op_state, node, input);
+                *per_op.entry(node.op().name().to_string()).or_default() += start.elapsed();
+                out
+            })
+            .map_err(err)?;
+        let mut v: Vec<_> = per_op.into_iter().collect();
+        v.sort_by_key(|x| std::cmp::Reverse(x.1));
+        Ok(v)
+    }
+
+    fn input_tensors(&self, inputs: &[PoseInput]) -> Result<TVec<TValue>> {
+        let (n, s, b) = (self.cfg.n_points, self.cfg.crop_size, inputs.len());
         for (i, x) in inputs.iter().enumerate() {
             if x.rgb.len() != 3 * s * s || x.pts.len() != 3 * n || x.choose.len() != n {
                 return Err(Error::InvalidArgument(format!("input {i} does not have the card's sizes (N {n}, S {s})")));
@@ -185,27 +211,28 @@ impl PoseEstimator {
             |f: fn(&PoseInput) -> &[f32]| inputs.iter().flat_map(|x| f(x).iter().copied()).collect::<Vec<f32>>();
         let choose: Vec<i64> = inputs.iter().flat_map(|x| x.choose.iter().copied()).collect();
         let tensor_err = |e: TractError| Error::Inference(format!("{e:#}"));
-        let tensors = tvec![
+        Ok(tvec![
             Tensor::from_shape(&[b, 3, s, s], &cat_f(|x| &x.rgb)).map_err(tensor_err)?.into_tvalue(),
             Tensor::from_shape(&[b, n, 3], &cat_f(|x| &x.pts)).map_err(tensor_err)?.into_tvalue(),
             Tensor::from_shape(&[b, n], &choose).map_err(tensor_err)?.into_tvalue(),
-        ];
-        let out = self.plan.run(tensors).map_err(tensor_err)?;
-        let slice = |k: usize| -> Result<&[f32]> {
-            out.get(k)
-                .ok_or_else(|| Error::Inference(format!("the graph returned {} outputs", out.len())))?
-                .try_as_plain_ram()
-                .and_then(|v| v.as_slice::<f32>())
-                .map_err(tensor_err)
-        };
-        let (r, t, sz, kpt) = (slice(0)?, slice(1)?, slice(2)?, slice(3)?);
-        let m = kpt.len() / b;
-        Ok((0..b)
-            .map(|j| {
-                decode(&r[9 * j..9 * j + 9], &t[3 * j..3 * j + 3], &sz[3 * j..3 * j + 3], &kpt[m * j..m * (j + 1)])
-            })
-            .collect())
+        ])
     }
+}
+
+fn decode_outputs(out: &TVec<TValue>, b: usize) -> Result<Vec<InstanceOutcome>> {
+    let tensor_err = |e: TractError| Error::Inference(format!("{e:#}"));
+    let slice = |k: usize| -> Result<&[f32]> {
+        out.get(k)
+            .ok_or_else(|| Error::Inference(format!("the graph returned {} outputs", out.len())))?
+            .try_as_plain_ram()
+            .and_then(|v| v.as_slice::<f32>())
+            .map_err(tensor_err)
+    };
+    let (r, t, sz, kpt) = (slice(0)?, slice(1)?, slice(2)?, slice(3)?);
+    let m = kpt.len() / b;
+    Ok((0..b)
+        .map(|j| decode(&r[9 * j..9 * j + 9], &t[3 * j..3 * j + 3], &sz[3 * j..3 * j + 3], &kpt[m * j..m * (j + 1)]))
+        .collect())
 }
 
 /// The graph's inputs must be rgb (batch, 3, S, S), pts (batch, N, 3), choose (batch, N).

@@ -39,6 +39,10 @@ pub struct Args {
     /// Seed of the point sampling (as `tricons replay --seed`).
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Also time every graph node once (batch 1 and the first frame's batch) and print the
+    /// operators taking the most time.
+    #[arg(long)]
+    profile_graph: bool,
     /// Also write the report as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -89,6 +93,8 @@ struct Report {
     per_frame: Stats,
     per_frame_preprocess: Stats,
     per_frame_graph: Stats,
+    /// The same frames' instances run one at a time (batch 1 each), summed per frame.
+    per_frame_graph_one_by_one: Stats,
     per_frame_ops: Vec<OpShare>,
     per_frame_custom_share: f64,
 }
@@ -163,9 +169,21 @@ pub fn run(args: Args) -> Result<()> {
             bar.inc(1);
         }
     }
-    bar.finish_and_clear();
     let (per_frame_ops, per_frame_custom_share) = op_shares(frame_times.len(), &graph_times);
     profile::enable(false);
+    let mut one_by_one = Vec::new();
+    for (i, frame, masks) in &frames {
+        let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+        let prepared = estimator.prepare(frame, &refs, mix_seed(&[args.seed, *i as u64]))?;
+        for _ in 0..args.runs {
+            let t = Instant::now();
+            for x in &prepared.inputs {
+                estimator.run_inputs(std::slice::from_ref(x))?;
+            }
+            one_by_one.push(t.elapsed());
+        }
+    }
+    bar.finish_and_clear();
 
     let card = estimator.card();
     let report = Report {
@@ -185,16 +203,47 @@ pub fn run(args: Args) -> Result<()> {
         per_frame: Stats::of(&frame_times),
         per_frame_preprocess: Stats::of(&prep_times),
         per_frame_graph: Stats::of(&graph_times),
+        per_frame_graph_one_by_one: Stats::of(&one_by_one),
         per_frame_ops,
         per_frame_custom_share,
     };
     print_report(&report);
+    if args.profile_graph {
+        print_node_profile(&estimator, &one[0], &frames, args.seed)?;
+    }
     if let Some(path) = &args.json {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
         write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
         log::info!("report written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// Time per tract operator over one run at batch 1 and one over the first frame's batch.
+fn print_node_profile(
+    estimator: &PoseEstimator,
+    one: &tricons::pose::preprocess::PoseInput,
+    frames: &[(usize, tricons::frame::RgbdFrame, Vec<Vec<bool>>)],
+    seed: u64,
+) -> Result<()> {
+    let (i, frame, masks) = &frames[0];
+    let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+    let batch = estimator.prepare(frame, &refs, mix_seed(&[seed, *i as u64]))?.inputs;
+    let single = estimator.profile_nodes(std::slice::from_ref(one))?;
+    let batched = estimator.profile_nodes(&batch)?;
+    let total = |v: &[(String, Duration)]| v.iter().map(|x| x.1.as_secs_f64()).sum::<f64>() * 1e3;
+    println!(
+        "graph profile: batch 1 {:.1} ms, batch {} {:.1} ms (one run each)",
+        total(&single),
+        batch.len(),
+        total(&batched)
+    );
+    println!("{:<28} {:>10} {:>14}", "operator", "batch 1 ms", format!("batch {} ms", batch.len()));
+    for (name, d) in single.iter().take(15) {
+        let b = batched.iter().find(|x| &x.0 == name).map(|x| x.1.as_secs_f64() * 1e3).unwrap_or(f64::NAN);
+        println!("{name:<28} {:>10.2} {:>14.2}", d.as_secs_f64() * 1e3, b);
     }
     Ok(())
 }
@@ -229,12 +278,13 @@ fn print_report(r: &Report) {
         100.0 * r.per_object_custom_share
     );
     println!(
-        "per frame ({} frames, {:.2} instances/frame): median {:.2} ms = preprocessing {:.2} + graph {:.2}; custom ops {:.1}% of the graph",
+        "per frame ({} frames, {:.2} instances/frame): median {:.2} ms = preprocessing {:.2} + graph {:.2} (one instance at a time: {:.2}); custom ops {:.1}% of the graph",
         r.frames,
         r.instances_per_frame,
         r.per_frame.median_ms,
         r.per_frame_preprocess.median_ms,
         r.per_frame_graph.median_ms,
+        r.per_frame_graph_one_by_one.median_ms,
         100.0 * r.per_frame_custom_share
     );
     println!(
