@@ -152,7 +152,7 @@ def table(results: dict, tract: dict | None) -> str:
             r = results[key]
             rows.append(f"| {names[key]} ({results['threads']} thread{'s' if results['threads'] > 1 else ''}) | "
                         f"{fmt(r['per_object'])} | {r['per_frame_graph']['median_ms']:.1f} | - |")
-    head = f"{results['config_name']} config, {results[next(k for k in ('pytorch', 'onnxruntime') if k in results)]['instances_per_frame']:.2f} instances/frame"
+    head = f"{results['config_name']} config, {results['pytorch']['instances_per_frame']:.2f} instances/frame"
     return head + "\n\n" + "\n".join(rows)
 
 
