@@ -39,37 +39,31 @@ fn flat(points: &[[f32; 3]]) -> Vec<f32> {
     points.iter().flatten().copied().collect()
 }
 
-fn brute_knn(queries: &[[f32; 3]], points: &[f32], k: usize) -> Vec<usize> {
+/// The k nearest of every query, concatenated, from `search(query, idx, d2)`.
+fn each_query(queries: &[[f32; 3]], k: usize, mut search: impl FnMut(&[f32], &mut [usize], &mut [f32])) -> Vec<usize> {
     let (mut idx, mut d2) = (vec![0usize; k], vec![0f32; k]);
     let mut out = Vec::with_capacity(queries.len() * k);
     for q in queries {
-        knn_brute_force(q, points, k, &mut idx, &mut d2);
+        search(q, &mut idx, &mut d2);
         out.extend_from_slice(&idx);
     }
     out
 }
 
-/// What the ops run: structure-of-arrays distances (vectorised), then the same selection.
+fn brute_knn(queries: &[[f32; 3]], points: &[f32], k: usize) -> Vec<usize> {
+    each_query(queries, k, |q, idx, d2| knn_brute_force(q, points, k, idx, d2))
+}
+
+/// Structure-of-arrays distances (vectorised), then the same selection.
 fn soa_knn(queries: &[[f32; 3]], points: &[f32], k: usize) -> Vec<usize> {
     let mut soa = PointsSoa::new(points);
-    let (mut idx, mut d2) = (vec![0usize; k], vec![0f32; k]);
-    let mut out = Vec::with_capacity(queries.len() * k);
-    for q in queries {
-        soa.knn(q, k, &mut idx, &mut d2);
-        out.extend_from_slice(&idx);
-    }
-    out
+    each_query(queries, k, |q, idx, d2| soa.knn(q, k, idx, d2))
 }
 
+/// What the ops run.
 fn index_knn(queries: &[[f32; 3]], points: &[f32], k: usize) -> Vec<usize> {
     let mut index = KnnIndex::new(points, queries.len());
-    let (mut idx, mut d2) = (vec![0usize; k], vec![0f32; k]);
-    let mut out = Vec::with_capacity(queries.len() * k);
-    for q in queries {
-        index.knn(q, k, &mut idx, &mut d2);
-        out.extend_from_slice(&idx);
-    }
-    out
+    each_query(queries, k, |q, idx, d2| index.knn(q, k, idx, d2))
 }
 
 fn kiddo_knn(queries: &[[f32; 3]], points: &[[f32; 3]], k: usize) -> Vec<usize> {
