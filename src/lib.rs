@@ -53,6 +53,7 @@ pub mod ops;
 pub mod output;
 pub mod pose;
 pub mod recording;
+pub mod segment;
 pub mod synth;
 
 pub use category::Category;

@@ -14,6 +14,10 @@
 //! | `ThreeNN`, `ThreeInterpolate` | [`three_nn`] |
 //! | `TriangleDescriptor` | [`triangle`] |
 //!
+//! Two standard ONNX operators are registered too, for the Mask R-CNN graph:
+//! [`roi_align`] (`RoiAlign`, which tract lacks) and [`nms`] (`NonMaxSuppression`,
+//! replacing tract's pairwise one with a grid kernel).
+//!
 //! Kernels work on one batch item: points are `(n, 3)` row-major `f32`
 //! slices, features `(c, n)` row-major, indices `i64`. Squared distances are
 //! `(dx*dx + dy*dy) + dz*dz` in `f32` (no fused multiply-add) so that index
@@ -24,7 +28,9 @@ pub mod ball_query;
 pub mod fps;
 pub mod gather;
 pub mod knn;
+pub mod nms;
 pub mod profile;
+pub mod roi_align;
 pub mod three_nn;
 pub mod tract_glue;
 pub mod triangle;
@@ -42,10 +48,11 @@ pub const NODE_TYPES: [&str; 7] = [
     "TriangleDescriptor",
 ];
 
-/// Register every `ai.tricons` operator with a tract ONNX loader.
+/// Register every `ai.tricons` operator, `RoiAlign` and the fast `NonMaxSuppression`
+/// with a tract ONNX loader.
 ///
-/// tract keys its op register by node type only (not domain); these names do not
-/// collide with standard ONNX operators.
+/// tract keys its op register by node type only (not domain); the `ai.tricons` names
+/// do not collide with standard ONNX operators, the two standard ones override on purpose.
 pub fn register(onnx: &mut tract_onnx::Onnx) {
     let reg = &mut onnx.op_register;
     reg.insert("FurthestPointSample", fps::onnx::parse);
@@ -55,6 +62,8 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("ThreeNN", three_nn::onnx::parse_three_nn);
     reg.insert("ThreeInterpolate", three_nn::onnx::parse_three_interpolate);
     reg.insert("TriangleDescriptor", triangle::onnx::parse);
+    reg.insert("RoiAlign", roi_align::onnx::parse);
+    reg.insert("NonMaxSuppression", nms::onnx::parse);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

@@ -5,6 +5,7 @@ mod eval;
 mod inspect;
 mod progress;
 mod replay;
+mod segment;
 mod synth;
 
 use clap::{Parser, Subcommand};
@@ -33,6 +34,8 @@ enum Command {
     Inspect(inspect::Args),
     /// Estimate poses over a recording with the pose model (ground-truth masks for now).
     Replay(replay::Args),
+    /// Segment frames with a Mask R-CNN (any torchvision export): masks and overlays out.
+    Segment(segment::Args),
     /// Measure pose-model latency per object and per frame, with each custom op's share.
     Bench(bench::Args),
 }
@@ -45,6 +48,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => eval::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::Segment(args) => segment::run(args),
         Command::Bench(args) => bench::run(args),
     };
     match result {

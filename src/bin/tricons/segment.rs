@@ -1,0 +1,122 @@
+//! `tricons segment`: run the Mask R-CNN over frames; masks and overlays out.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use tricons::atomic::{write_atomic, write_atomic_with};
+use tricons::image_io::{read_color_png, write_label_png};
+use tricons::output::segments::{SegRecord, draw_segments, label_image};
+use tricons::recording::open_recording;
+use tricons::segment::Segmenter;
+
+use crate::progress;
+
+/// The shipped Mask R-CNN's card.
+pub const DEFAULT_SEGMENTER: &str = "models/maskrcnn-light.card.json";
+
+/// Arguments of `tricons segment`.
+#[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    tricons segment                                   # shipped Mask R-CNN on the shipped demo recording\n  \
+    tricons segment --image photo.png --out data/segment/photo --overlays\n  \
+    tricons segment --model maskrcnn_resnet50_fpn.onnx --min-score 0 --recording data/synthnocs-test\n\n\
+    Writes <out>/segments.jsonl (one line per frame: label, class, score, box, run-length mask)\n\
+    and <out>/<frame>_labels.png (8-bit, pixel = 1 + instance index); --overlays adds\n\
+    <out>/<frame>_segments.png. Any torchvision Mask R-CNN ONNX export loads; without a\n\
+    card beside it, labels stay numeric and the score threshold is 0.5.")]
+pub struct Args {
+    /// Recording directory (ignored when --image is given).
+    #[arg(long, default_value = crate::replay::DEFAULT_RECORDING)]
+    recording: PathBuf,
+    /// Colour PNG(s) to segment instead of a recording.
+    #[arg(long, num_args = 1..)]
+    image: Vec<PathBuf>,
+    /// Mask R-CNN: its card (`*.card.json`) or graph (`*.onnx`).
+    #[arg(long, default_value = DEFAULT_SEGMENTER)]
+    model: PathBuf,
+    /// Output directory [default: data/segment/<recording or image name>].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Also write mask overlays.
+    #[arg(long)]
+    overlays: bool,
+    /// Keep detections scoring at least this (default: the card's threshold).
+    #[arg(long)]
+    min_score: Option<f32>,
+    /// Only the first N frames of the recording.
+    #[arg(long)]
+    limit: Option<usize>,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let t_load = Instant::now();
+    let mut seg = Segmenter::load(&args.model).with_context(|| "loading the segmenter (--model)")?;
+    if let Some(s) = args.min_score {
+        anyhow::ensure!((0.0..=1.0).contains(&s), "--min-score must lie in [0, 1], got {s}");
+        seg.set_score_threshold(s);
+    }
+    log::info!("segmenter {} loaded in {:.2} s", seg.onnx_path().display(), t_load.elapsed().as_secs_f64());
+    // (frame id, loader) pairs: images or recording frames.
+    let frames: Vec<(String, Box<dyn Fn() -> Result<tricons::ColorImage>>)> = if args.image.is_empty() {
+        let rec =
+            std::rc::Rc::new(open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?);
+        let n = args.limit.unwrap_or(usize::MAX).min(rec.len());
+        (0..n)
+            .map(|i| {
+                let rec = rec.clone();
+                let id = rec.frame_id(i).to_string();
+                let load: Box<dyn Fn() -> Result<tricons::ColorImage>> = Box::new(move || Ok(rec.read_frame(i)?.color));
+                (id, load)
+            })
+            .collect()
+    } else {
+        args.image
+            .iter()
+            .map(|p| {
+                let id = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());
+                let p = p.clone();
+                let load: Box<dyn Fn() -> Result<tricons::ColorImage>> = Box::new(move || Ok(read_color_png(&p)?));
+                (id, load)
+            })
+            .collect()
+    };
+    let name = match args.image.first() {
+        Some(p) => p.file_stem().map(|s| s.to_string_lossy().into_owned()),
+        None => args.recording.file_name().map(|s| s.to_string_lossy().into_owned()),
+    };
+    let out =
+        args.out.clone().unwrap_or_else(|| PathBuf::from("data/segment").join(name.unwrap_or_else(|| "frames".into())));
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let bar = progress::bar(frames.len(), "segment");
+    let (mut records, mut total, mut secs) = (Vec::new(), 0usize, 0f64);
+    for (id, load) in &frames {
+        let image = load().with_context(|| format!("reading frame {id}"))?;
+        let t = Instant::now();
+        let instances = seg.segment(&image).with_context(|| format!("segmenting frame {id}"))?;
+        secs += t.elapsed().as_secs_f64();
+        total += instances.len();
+        write_label_png(&out.join(format!("{id}_labels.png")), &label_image(image.width, image.height, &instances))?;
+        if args.overlays {
+            write_atomic(&out.join(format!("{id}_segments.png")), &draw_segments(&image, &instances)?)?;
+        }
+        records.push(SegRecord::new(id, image.width, image.height, &instances));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let jsonl = out.join("segments.jsonl");
+    write_atomic_with(&jsonl, |f| {
+        use std::io::Write;
+        for r in &records {
+            writeln!(f, "{}", serde_json::to_string(r).map_err(std::io::Error::other)?)?;
+        }
+        Ok(())
+    })?;
+    log::info!(
+        "{} frames, {total} instances, {:.1} ms/frame (first frame includes planning) -> {}",
+        records.len(),
+        1e3 * secs / records.len().max(1) as f64,
+        jsonl.display()
+    );
+    Ok(())
+}

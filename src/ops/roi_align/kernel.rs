@@ -1,0 +1,166 @@
+//! Scalar RoiAlign kernel on slices.
+//!
+//! Per ROI the sampling positions and bilinear weights are computed once
+//! (they do not depend on the channel), then every channel is pooled from
+//! them, exactly as onnxruntime's `RoiAlignForward` does (same float order).
+
+use crate::ops::{OpResult, check_len, checked_index};
+
+/// How a bin's samples are combined.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PoolMode {
+    /// Mean of the bilinear samples.
+    Avg,
+    /// onnxruntime's max: per sample the largest weighted corner, then the largest sample.
+    Max,
+}
+
+/// Attributes of one RoiAlign node.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RoiAlignParams {
+    /// Output bins per ROI, vertically.
+    pub output_height: usize,
+    /// Output bins per ROI, horizontally.
+    pub output_width: usize,
+    /// Samples per bin and axis; 0 = adaptive (`ceil(roi_size / bins)`).
+    pub sampling_ratio: usize,
+    /// Multiplies ROI coordinates (image pixels) into feature-map pixels.
+    pub spatial_scale: f32,
+    /// `half_pixel` shifts by -0.5 (torchvision `aligned=True`); `output_half_pixel`
+    /// does not and makes every ROI at least 1 x 1.
+    pub half_pixel: bool,
+    /// Pooling mode.
+    pub mode: PoolMode,
+}
+
+/// One bilinear sample: four flat positions in the channel plane and their weights.
+#[derive(Clone, Copy, Debug, Default)]
+struct Sample {
+    pos: [usize; 4],
+    w: [f32; 4],
+}
+
+fn bilinear_sample(mut y: f32, mut x: f32, height: usize, width: usize) -> Sample {
+    if y < -1.0 || y > height as f32 || x < -1.0 || x > width as f32 {
+        return Sample::default();
+    }
+    if y <= 0.0 {
+        y = 0.0;
+    }
+    if x <= 0.0 {
+        x = 0.0;
+    }
+    let (mut y_low, mut x_low) = (y as usize, x as usize);
+    let (y_high, x_high);
+    if y_low >= height - 1 {
+        y_low = height - 1;
+        y_high = y_low;
+        y = y_low as f32;
+    } else {
+        y_high = y_low + 1;
+    }
+    if x_low >= width - 1 {
+        x_low = width - 1;
+        x_high = x_low;
+        x = x_low as f32;
+    } else {
+        x_high = x_low + 1;
+    }
+    let (ly, lx) = (y - y_low as f32, x - x_low as f32);
+    let (hy, hx) = (1.0 - ly, 1.0 - lx);
+    Sample {
+        pos: [y_low * width + x_low, y_low * width + x_high, y_high * width + x_low, y_high * width + x_high],
+        w: [hy * hx, hy * lx, ly * hx, ly * lx],
+    }
+}
+
+/// RoiAlign over a `(n, c, height, width)` feature map.
+///
+/// `rois` is `(r, 4)` as `(x1, y1, x2, y2)` in image pixels, `batch_indices` `(r,)`;
+/// `out` is `(r, c, output_height, output_width)`.
+#[allow(clippy::too_many_arguments)]
+pub fn roi_align(
+    features: &[f32],
+    (n, c, height, width): (usize, usize, usize, usize),
+    rois: &[f32],
+    batch_indices: &[i64],
+    p: &RoiAlignParams,
+    out: &mut [f32],
+) -> OpResult {
+    const OP: &str = "RoiAlign";
+    let r = batch_indices.len();
+    let (ph_n, pw_n) = (p.output_height, p.output_width);
+    check_len(OP, "features", features.len(), n * c * height * width)?;
+    check_len(OP, "rois", rois.len(), r * 4)?;
+    check_len(OP, "output", out.len(), r * c * ph_n * pw_n)?;
+    if height == 0 || width == 0 {
+        out.fill(0.0);
+        return Ok(());
+    }
+    let offset = if p.half_pixel { 0.5f32 } else { 0.0 };
+    let plane = height * width;
+    let mut samples = Vec::new();
+    for (ri, roi) in rois.chunks_exact(4).enumerate() {
+        let b = checked_index(OP, batch_indices[ri], n)?;
+        let start_w = roi[0] * p.spatial_scale - offset;
+        let start_h = roi[1] * p.spatial_scale - offset;
+        let end_w = roi[2] * p.spatial_scale - offset;
+        let end_h = roi[3] * p.spatial_scale - offset;
+        let (mut roi_w, mut roi_h) = (end_w - start_w, end_h - start_h);
+        if !p.half_pixel {
+            roi_w = roi_w.max(1.0);
+            roi_h = roi_h.max(1.0);
+        }
+        let bin_h = roi_h / ph_n as f32;
+        let bin_w = roi_w / pw_n as f32;
+        let grid_h =
+            if p.sampling_ratio > 0 { p.sampling_ratio } else { (roi_h / ph_n as f32).ceil().max(0.0) as usize };
+        let grid_w =
+            if p.sampling_ratio > 0 { p.sampling_ratio } else { (roi_w / pw_n as f32).ceil().max(0.0) as usize };
+        let count = (grid_h * grid_w).max(1) as f32;
+        samples.clear();
+        for ph in 0..ph_n {
+            for pw in 0..pw_n {
+                for iy in 0..grid_h {
+                    let y = start_h + ph as f32 * bin_h + (iy as f32 + 0.5) * bin_h / grid_h as f32;
+                    for ix in 0..grid_w {
+                        let x = start_w + pw as f32 * bin_w + (ix as f32 + 0.5) * bin_w / grid_w as f32;
+                        samples.push(bilinear_sample(y, x, height, width));
+                    }
+                }
+            }
+        }
+        let per_bin = grid_h * grid_w;
+        for ci in 0..c {
+            let data = &features[(b * c + ci) * plane..(b * c + ci + 1) * plane];
+            let dst = &mut out[(ri * c + ci) * ph_n * pw_n..(ri * c + ci + 1) * ph_n * pw_n];
+            for (bin, o) in dst.iter_mut().enumerate() {
+                let bin_samples = &samples[bin * per_bin..(bin + 1) * per_bin];
+                *o = match p.mode {
+                    PoolMode::Avg => {
+                        let mut acc = 0f32;
+                        for s in bin_samples {
+                            acc += s.w[0] * data[s.pos[0]]
+                                + s.w[1] * data[s.pos[1]]
+                                + s.w[2] * data[s.pos[2]]
+                                + s.w[3] * data[s.pos[3]];
+                        }
+                        acc / count
+                    }
+                    PoolMode::Max => {
+                        let mut acc = 0f32;
+                        for (k, s) in bin_samples.iter().enumerate() {
+                            let v = (s.w[0] * data[s.pos[0]])
+                                .max(s.w[1] * data[s.pos[1]])
+                                .max(s.w[2] * data[s.pos[2]])
+                                .max(s.w[3] * data[s.pos[3]]);
+                            acc = if k == 0 { v } else { acc.max(v) };
+                        }
+                        acc
+                    }
+                };
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,208 @@
+//! The segmenter card beside a Mask R-CNN graph (docs/formats.md, "Segmenter card").
+//!
+//! Optional: a bare torchvision export runs with [`SegmenterCard::bare`] (RGB in
+//! [0, 1], outputs named boxes / labels / scores / masks, no class mapping).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::category::Category;
+use crate::error::{Error, Result};
+
+/// `format` field of a segmenter card.
+pub const SEGMENTER_CARD_FORMAT: &str = "tricons-segmenter-card";
+/// Card version this build reads.
+pub const SEGMENTER_CARD_VERSION: u32 = 1;
+/// Score threshold of a bare export (torchvision's demos use 0.5).
+pub const DEFAULT_SCORE_THRESHOLD: f32 = 0.5;
+/// Mask probability threshold (torchvision's convention).
+pub const DEFAULT_MASK_THRESHOLD: f32 = 0.5;
+
+/// How the image tensor is built from 8-bit RGB: `((pixel * scale) - mean) / std` per
+/// channel, `(3, H, W)`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InputSpec {
+    /// Graph input name (default: the graph's first input).
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Only "CHW" (torchvision takes a list of `(3, H, W)` images).
+    #[serde(default = "chw")]
+    pub layout: String,
+    /// "rgb" or "bgr".
+    #[serde(default = "rgb")]
+    pub color: String,
+    /// Multiplies 8-bit values (torchvision: 1/255; its graph normalises inside).
+    #[serde(default = "unit_scale")]
+    pub scale: f32,
+    /// Subtracted after scaling.
+    #[serde(default)]
+    pub mean: [f32; 3],
+    /// Divides after the mean.
+    #[serde(default = "ones")]
+    pub std: [f32; 3],
+}
+
+fn chw() -> String {
+    "CHW".into()
+}
+fn rgb() -> String {
+    "rgb".into()
+}
+fn unit_scale() -> f32 {
+    1.0 / 255.0
+}
+fn ones() -> [f32; 3] {
+    [1.0; 3]
+}
+
+impl Default for InputSpec {
+    fn default() -> Self {
+        InputSpec { name: None, layout: chw(), color: rgb(), scale: unit_scale(), mean: [0.0; 3], std: ones() }
+    }
+}
+
+/// Graph output names of the four Mask R-CNN results.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OutputNames {
+    /// `(N, 4)` boxes, x0 y0 x1 y1 in input pixels.
+    pub boxes: String,
+    /// `(N,)` int64 labels.
+    pub labels: String,
+    /// `(N,)` scores.
+    pub scores: String,
+    /// `(N, 1, H, W)` mask probabilities (pasted in Rust when the graph pastes with a Loop).
+    pub masks: String,
+}
+
+impl Default for OutputNames {
+    fn default() -> Self {
+        OutputNames { boxes: "boxes".into(), labels: "labels".into(), scores: "scores".into(), masks: "masks".into() }
+    }
+}
+
+/// What the runtime reads from a segmenter card.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct SegmenterCard {
+    /// Always [`SEGMENTER_CARD_FORMAT`].
+    pub format: String,
+    /// Card version.
+    pub version: u32,
+    /// The ONNX file, relative to the card's directory.
+    pub model: String,
+    /// Free text: backbone, input size.
+    #[serde(default)]
+    pub architecture: String,
+    /// Input construction.
+    #[serde(default)]
+    pub input: InputSpec,
+    /// Output names.
+    #[serde(default)]
+    pub outputs: OutputNames,
+    /// Model label id (as a string key) -> class name; NOCS names map to categories.
+    #[serde(default)]
+    pub labels: BTreeMap<String, String>,
+    /// Instances scoring below are dropped.
+    #[serde(default = "default_score")]
+    pub score_threshold: f32,
+    /// Mask probability at or above which a pixel belongs to the instance.
+    #[serde(default = "default_mask")]
+    pub mask_threshold: f32,
+    /// Training provenance and measured accuracy (not read by the runtime).
+    #[serde(default)]
+    pub training: serde_json::Value,
+    /// Measured accuracy (not read by the runtime).
+    #[serde(default)]
+    pub metrics: serde_json::Value,
+}
+
+fn default_score() -> f32 {
+    DEFAULT_SCORE_THRESHOLD
+}
+fn default_mask() -> f32 {
+    DEFAULT_MASK_THRESHOLD
+}
+
+impl SegmenterCard {
+    /// The card of a bare torchvision export `model` (no class mapping).
+    pub fn bare(model: &Path) -> SegmenterCard {
+        SegmenterCard {
+            format: SEGMENTER_CARD_FORMAT.into(),
+            version: SEGMENTER_CARD_VERSION,
+            model: model.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+            architecture: String::new(),
+            input: InputSpec::default(),
+            outputs: OutputNames::default(),
+            labels: BTreeMap::new(),
+            score_threshold: DEFAULT_SCORE_THRESHOLD,
+            mask_threshold: DEFAULT_MASK_THRESHOLD,
+            training: serde_json::Value::Null,
+            metrics: serde_json::Value::Null,
+        }
+    }
+
+    /// Read and check a card file.
+    pub fn read(path: &Path) -> Result<SegmenterCard> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let card: SegmenterCard =
+            serde_json::from_str(&text).map_err(|e| Error::parse(path, Some(e.line()), e.to_string()))?;
+        let bad = |m: String| Err(Error::parse(path, None, m));
+        if card.format != SEGMENTER_CARD_FORMAT {
+            return bad(format!("field `format`: expected {SEGMENTER_CARD_FORMAT:?}, found {:?}", card.format));
+        }
+        if card.version != SEGMENTER_CARD_VERSION {
+            return bad(format!(
+                "field `version`: this build reads version {SEGMENTER_CARD_VERSION}, found {}",
+                card.version
+            ));
+        }
+        if card.input.layout != "CHW" {
+            return bad(format!("field `input.layout`: only \"CHW\" is supported, found {:?}", card.input.layout));
+        }
+        if card.input.color != "rgb" && card.input.color != "bgr" {
+            return bad(format!("field `input.color`: expected \"rgb\" or \"bgr\", found {:?}", card.input.color));
+        }
+        if !card.input.scale.is_finite() || card.input.std.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return bad("field `input`: scale must be finite and std positive".into());
+        }
+        for (k, v) in &card.labels {
+            if k.parse::<i64>().is_err() {
+                return bad(format!("field `labels`: key {k:?} (for {v:?}) is not an integer label id"));
+            }
+        }
+        if !(0.0..=1.0).contains(&card.score_threshold) || !(0.0..=1.0).contains(&card.mask_threshold) {
+            return bad("fields `score_threshold` and `mask_threshold` must lie in [0, 1]".into());
+        }
+        Ok(card)
+    }
+
+    /// The class name of model label `label`, when the card maps it.
+    pub fn class_name(&self, label: i64) -> Option<&str> {
+        self.labels.get(&label.to_string()).map(String::as_str)
+    }
+
+    /// The NOCS category of model label `label`, when the card maps it to one.
+    pub fn category(&self, label: i64) -> Option<Category> {
+        self.class_name(label).and_then(|n| n.parse().ok())
+    }
+}
+
+/// Where a segmenter argument's card and graph are: a `*.card.json` (graph named inside),
+/// or a `*.onnx` with an optional `<stem>.card.json` beside it.
+pub fn resolve(model: &Path) -> Result<(SegmenterCard, PathBuf)> {
+    let name = model.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    if name.ends_with(".json") {
+        let card = SegmenterCard::read(model)?;
+        let onnx = model.parent().unwrap_or(Path::new(".")).join(&card.model);
+        return Ok((card, onnx));
+    }
+    let card_path = crate::pose::card::card_path_for(model);
+    if card_path != model && card_path.exists() {
+        let card = SegmenterCard::read(&card_path)?;
+        return Ok((card, model.to_path_buf()));
+    }
+    Ok((SegmenterCard::bare(model), model.to_path_buf()))
+}

@@ -1,0 +1,329 @@
+//! Instance segmentation with any torchvision Mask R-CNN ONNX export.
+//!
+//! [`Segmenter::load`] reads the user's file unmodified, rewrites what tract lacks
+//! ([`rewrite`]: the NMS `If`, un-clamped `Slice`, the mask-pasting `Loop`), registers
+//! `RoiAlign` and the fast `NonMaxSuppression` ([`crate::ops`]), and plans the graph
+//! once per image size. [`Segmenter::segment`] returns [`SegInstance`]s with
+//! full-resolution masks pasted in Rust ([`paste`]).
+
+pub mod card;
+pub mod paste;
+pub mod rewrite;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use tract_onnx::prelude::*;
+
+pub use card::{InputSpec, OutputNames, SegmenterCard};
+pub use rewrite::{RewriteReport, rewrite};
+
+use crate::category::Category;
+use crate::error::{Error, Result};
+use crate::frame::ColorImage;
+
+/// One detected instance.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SegInstance {
+    /// The model's label id.
+    pub label: i64,
+    /// The card's class name for the label, if any.
+    pub class_name: Option<String>,
+    /// The NOCS category, when the class name is one.
+    pub category: Option<Category>,
+    /// Detection score.
+    pub score: f32,
+    /// Box `(x0, y0, x1, y1)` in image pixels.
+    pub box_xyxy: [f32; 4],
+    /// Full-image mask (row-major, `width * height`): probability >= the card's threshold.
+    pub mask: Vec<bool>,
+}
+
+impl SegInstance {
+    /// Number of mask pixels.
+    pub fn mask_pixels(&self) -> usize {
+        self.mask.iter().filter(|&&m| m).count()
+    }
+}
+
+/// Where the graph's results are among its outputs.
+#[derive(Clone, Debug)]
+struct OutputSlots {
+    boxes: usize,
+    labels: usize,
+    scores: usize,
+    /// Full masks `(N, 1, H, W)` when the graph pastes itself without a Loop.
+    masks: Option<usize>,
+    /// Padded mask probabilities and integer boxes, when the Loop was cut.
+    paste: Option<(usize, usize)>,
+}
+
+/// A loaded Mask R-CNN.
+pub struct Segmenter {
+    card: SegmenterCard,
+    onnx_path: PathBuf,
+    model: InferenceModel,
+    input_index: usize,
+    slots: OutputSlots,
+    report: RewriteReport,
+    plans: Mutex<HashMap<(usize, usize), Arc<TypedRunnableModel>>>,
+}
+
+impl std::fmt::Debug for Segmenter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Segmenter").field("model", &self.onnx_path).field("rewrites", &self.report).finish()
+    }
+}
+
+/// The raw (unthresholded) results of one run, in the graph's order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RawDetections {
+    /// `(N, 4)` boxes.
+    pub boxes: Vec<[f32; 4]>,
+    /// Labels.
+    pub labels: Vec<i64>,
+    /// Scores.
+    pub scores: Vec<f32>,
+    /// Per detection, the full-image mask probabilities (`width * height`).
+    pub masks: Vec<Vec<f32>>,
+}
+
+impl Segmenter {
+    /// Load a model: a `*.card.json`, or a `*.onnx` (with its `<stem>.card.json` if
+    /// present, else as a bare torchvision export).
+    pub fn load(model: &Path) -> Result<Segmenter> {
+        let (card, onnx_path) = card::resolve(model)?;
+        Self::load_with_card(&onnx_path, card)
+    }
+
+    /// Load `onnx_path` with an explicit card.
+    pub fn load_with_card(onnx_path: &Path, card: SegmenterCard) -> Result<Segmenter> {
+        let bytes = std::fs::read(onnx_path).map_err(|e| Error::io(onnx_path, e))?;
+        let err = |m: String| Error::model(onnx_path, m);
+        let onnx = crate::ops::onnx_with_custom_ops();
+        let mut proto = onnx
+            .proto_model_for_read(&mut bytes.as_slice())
+            .map_err(|e| err(format!("not a readable ONNX model: {e:#}")))?;
+        let report = rewrite(&mut proto).map_err(&err)?;
+        let graph = proto.graph.as_ref().ok_or_else(|| err("the file holds no graph".into()))?;
+        let outputs: Vec<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
+        let find = |name: &str, what: &str| {
+            outputs.iter().position(|o| *o == name).ok_or_else(|| {
+                err(format!(
+                    "no graph output named {name:?} ({what}); the graph's outputs are {outputs:?}. \
+                     A torchvision Mask R-CNN export names them in its card's `outputs` \
+                     (torch.onnx.export(..., output_names=[\"boxes\", \"labels\", \"scores\", \"masks\"]))"
+                ))
+            })
+        };
+        let o = &card.outputs;
+        let (boxes, labels, scores) =
+            (find(&o.boxes, "boxes")?, find(&o.labels, "labels")?, find(&o.scores, "scores")?);
+        let slots = match &report.pasted_output {
+            Some(_) => OutputSlots {
+                boxes,
+                labels,
+                scores,
+                masks: None,
+                paste: Some((
+                    find(rewrite::PASTE_MASKS_OUTPUT, "pasted masks")?,
+                    find(rewrite::PASTE_BOXES_OUTPUT, "paste boxes")?,
+                )),
+            },
+            None => OutputSlots { boxes, labels, scores, masks: Some(find(&o.masks, "masks")?), paste: None },
+        };
+        let inputs: Vec<&str> = graph
+            .input
+            .iter()
+            .map(|i| i.name.as_str())
+            .filter(|n| !graph.initializer.iter().any(|t| t.name == *n))
+            .collect();
+        let input_index = match &card.input.name {
+            Some(name) => inputs.iter().position(|i| i == name).ok_or_else(|| {
+                err(format!("no graph input named {name:?} (field input.name); the inputs are {inputs:?}"))
+            })?,
+            None if inputs.len() == 1 => 0,
+            None => return Err(err(format!("expected one image input, the graph has {inputs:?}"))),
+        };
+        let model = onnx.model_for_proto_model(&proto).map_err(|e| err(format!("{e:#}")))?;
+        log::info!(
+            "{}: {} If inlined, {} Slice clamped, masks {}",
+            onnx_path.display(),
+            report.ifs_inlined,
+            report.slices_clamped,
+            if report.pasted_output.is_some() { "pasted in Rust" } else { "from the graph" }
+        );
+        Ok(Segmenter {
+            card,
+            onnx_path: onnx_path.to_path_buf(),
+            model,
+            input_index,
+            slots,
+            report,
+            plans: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The card in use.
+    pub fn card(&self) -> &SegmenterCard {
+        &self.card
+    }
+
+    /// Keep detections scoring at least `score` (overrides the card).
+    pub fn set_score_threshold(&mut self, score: f32) {
+        self.card.score_threshold = score;
+    }
+
+    /// The graph file.
+    pub fn onnx_path(&self) -> &Path {
+        &self.onnx_path
+    }
+
+    /// What the load-time rewrite changed.
+    pub fn rewrites(&self) -> &RewriteReport {
+        &self.report
+    }
+
+    /// The optimised plan for `width x height` images (built on first use, then cached).
+    fn plan(&self, width: usize, height: usize) -> Result<Arc<TypedRunnableModel>> {
+        let mut plans = self.plans.lock().map_err(|_| Error::Inference("segmenter plan cache poisoned".into()))?;
+        if let Some(p) = plans.get(&(width, height)) {
+            return Ok(p.clone());
+        }
+        let err = |e: TractError| Error::model(&self.onnx_path, format!("{e:#}"));
+        let plan = self
+            .model
+            .clone()
+            .with_input_fact(self.input_index, f32::fact([3, height, width]).into())
+            .and_then(|m| m.into_typed())
+            .and_then(|m| m.into_decluttered())
+            .and_then(|m| m.into_optimized())
+            .and_then(|m| m.into_runnable())
+            .map_err(err)?;
+        plans.insert((width, height), plan.clone());
+        Ok(plan)
+    }
+
+    /// Build the plan for `width x height` now (loading is otherwise lazy).
+    pub fn prepare(&self, width: usize, height: usize) -> Result<()> {
+        self.plan(width, height).map(|_| ())
+    }
+
+    /// The image tensor `(3, H, W)` as the card says.
+    pub fn input_tensor(&self, image: &ColorImage) -> Tensor {
+        let (w, h) = (image.width as usize, image.height as usize);
+        let spec = &self.card.input;
+        let order = if spec.color == "bgr" { [2, 1, 0] } else { [0, 1, 2] };
+        let mut data = vec![0f32; 3 * w * h];
+        for (c, plane) in data.chunks_exact_mut(w * h).enumerate() {
+            let src = order[c];
+            let (mean, std) = (spec.mean[c], spec.std[c]);
+            for (o, px) in plane.iter_mut().zip(image.data.chunks_exact(3)) {
+                *o = (px[src] as f32 * spec.scale - mean) / std;
+            }
+        }
+        tract_ndarray::Array3::from_shape_vec((3, h, w), data).map(Tensor::from).unwrap_or_else(|_| Tensor::default())
+    }
+
+    /// Every detection the graph returns (its own score floor only), masks as probabilities.
+    pub fn detect_raw(&self, image: &ColorImage) -> Result<RawDetections> {
+        self.detect(image, f32::NEG_INFINITY)
+    }
+
+    /// Detections scoring at least the card's threshold, with thresholded masks.
+    pub fn segment(&self, image: &ColorImage) -> Result<Vec<SegInstance>> {
+        let raw = self.detect(image, self.card.score_threshold)?;
+        let (w, h) = (image.width as usize, image.height as usize);
+        let t = self.card.mask_threshold;
+        Ok((0..raw.scores.len())
+            .map(|i| SegInstance {
+                label: raw.labels[i],
+                class_name: self.card.class_name(raw.labels[i]).map(str::to_owned),
+                category: self.card.category(raw.labels[i]),
+                score: raw.scores[i],
+                box_xyxy: raw.boxes[i],
+                mask: raw
+                    .masks
+                    .get(i)
+                    .map(|m| m.iter().map(|&p| p >= t).collect())
+                    .unwrap_or_else(|| vec![false; w * h]),
+            })
+            .collect())
+    }
+
+    fn detect(&self, image: &ColorImage, min_score: f32) -> Result<RawDetections> {
+        let (w, h) = (image.width as usize, image.height as usize);
+        if w == 0 || h == 0 || image.data.len() != w * h * 3 {
+            return Err(Error::InvalidArgument(format!("image {w}x{h} with {} bytes", image.data.len())));
+        }
+        let plan = self.plan(w, h)?;
+        let mut inputs: TVec<TValue> = tvec![];
+        inputs.push(self.input_tensor(image).into());
+        let out = plan.run(inputs).map_err(|e| Error::Inference(format!("{e:#}")))?;
+        let view = |i: usize, what: &str| -> Result<&[f32]> {
+            out[i]
+                .try_as_plain_ram()
+                .and_then(|t| t.as_slice::<f32>())
+                .map_err(|e| Error::Inference(format!("{what}: {e:#}")))
+        };
+        let boxes = view(self.slots.boxes, "boxes")?;
+        let scores = view(self.slots.scores, "scores")?;
+        let labels = out[self.slots.labels]
+            .cast_to::<i64>()
+            .map_err(|e| Error::Inference(format!("labels: {e:#}")))?
+            .try_as_plain_ram()
+            .and_then(|t| t.as_slice::<i64>().map(<[i64]>::to_vec))
+            .map_err(|e| Error::Inference(format!("labels: {e:#}")))?;
+        let n = scores.len();
+        if boxes.len() != n * 4 || labels.len() != n {
+            return Err(Error::Inference(format!(
+                "inconsistent outputs: {} boxes values, {} labels, {n} scores",
+                boxes.len(),
+                labels.len()
+            )));
+        }
+        let keep: Vec<usize> = (0..n).filter(|&i| scores[i] >= min_score).collect();
+        let mut det = RawDetections::default();
+        for &i in &keep {
+            det.boxes.push([boxes[4 * i], boxes[4 * i + 1], boxes[4 * i + 2], boxes[4 * i + 3]]);
+            det.labels.push(labels[i]);
+            det.scores.push(scores[i]);
+        }
+        if let Some((mi, bi)) = self.slots.paste {
+            let probs = view(mi, "pasted masks")?;
+            let pbox = out[bi]
+                .cast_to::<i64>()
+                .map_err(|e| Error::Inference(format!("paste boxes: {e:#}")))?
+                .try_as_plain_ram()
+                .and_then(|t| t.as_slice::<i64>().map(<[i64]>::to_vec))
+                .map_err(|e| Error::Inference(format!("paste boxes: {e:#}")))?;
+            let shape = out[mi].shape();
+            let m = shape.last().copied().unwrap_or(0);
+            if shape.len() != 4 || shape[0] != n || m == 0 || pbox.len() != n * 4 {
+                return Err(Error::Inference(format!(
+                    "pasted masks {shape:?} / boxes {} for {n} detections",
+                    pbox.len()
+                )));
+            }
+            for &i in &keep {
+                let mut full = vec![0f32; w * h];
+                let b = [pbox[4 * i], pbox[4 * i + 1], pbox[4 * i + 2], pbox[4 * i + 3]];
+                paste::paste_mask(&probs[i * m * m..(i + 1) * m * m], m, b, h, w, &mut full);
+                det.masks.push(full);
+            }
+        } else if let Some(mi) = self.slots.masks {
+            let probs = view(mi, "masks")?;
+            if probs.len() != n * w * h {
+                return Err(Error::Inference(format!(
+                    "masks hold {} values for {n} detections of {w}x{h}",
+                    probs.len()
+                )));
+            }
+            for &i in &keep {
+                det.masks.push(probs[i * w * h..(i + 1) * w * h].to_vec());
+            }
+        }
+        Ok(det)
+    }
+}

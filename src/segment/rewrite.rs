@@ -1,0 +1,261 @@
+//! Load-time rewrites of a torchvision Mask R-CNN ONNX graph for tract.
+//!
+//! A `torch.onnx.export` of torchvision's Mask R-CNN (opset 11 to 17) holds three
+//! patterns tract 0.23 cannot load or run; they are rewritten on the ONNX protobuf,
+//! before tract parses it, so the user's file runs unmodified:
+//!
+//! * **`If` of the batched NMS** (`if boxes.numel() == 0: return empty`): the
+//!   then-branch is constants only, the else-branch the real work. The else-branch
+//!   is inlined (it gives the same empty result on empty input).
+//! * **`Slice` with a constant end on a symbolic axis** (`keep[:1000]`): tract does
+//!   not clamp. Such a Slice gets `ends := Min(ends, Shape(data)[axes])`.
+//! * **The mask-pasting `Loop`** (`_onnx_paste_masks_in_image_loop`): removed. Its
+//!   two inputs from the outer graph, the padded 28x28 mask probabilities and the
+//!   integer paste boxes, become graph outputs and [`super::paste`] pastes in Rust.
+
+use std::collections::{HashMap, HashSet};
+
+use tract_onnx::pb::{
+    AttributeProto, GraphProto, ModelProto, NodeProto, TensorProto, ValueInfoProto, attribute_proto, tensor_proto,
+};
+
+/// Graph output added for the padded mask probabilities `(N, 1, M + 2, M + 2)`.
+pub const PASTE_MASKS_OUTPUT: &str = "tricons.paste.masks";
+/// Graph output added for the integer paste boxes `(N, 4)` (x0, y0, x1, y1).
+pub const PASTE_BOXES_OUTPUT: &str = "tricons.paste.boxes";
+
+/// What [`rewrite`] changed.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RewriteReport {
+    /// `If` nodes replaced by their else-branch.
+    pub ifs_inlined: usize,
+    /// `Slice` nodes whose ends are now clamped.
+    pub slices_clamped: usize,
+    /// The graph output the removed mask-pasting `Loop` produced (pasted in Rust now).
+    pub pasted_output: Option<String>,
+}
+
+/// Apply the three rewrites to `model` in place. Patterns that are absent are left
+/// alone (the report says what was found); anything unexpected in a pattern is an error.
+pub fn rewrite(model: &mut ModelProto) -> Result<RewriteReport, String> {
+    let graph = model.graph.as_mut().ok_or("the file holds no graph")?;
+    let mut report = RewriteReport::default();
+    report.ifs_inlined = inline_empty_guard_ifs(graph)?;
+    report.pasted_output = cut_paste_loop(graph)?;
+    report.slices_clamped = clamp_slices(graph);
+    Ok(report)
+}
+
+fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
+    node.attribute.iter().find(|a| a.name == name)
+}
+
+/// Replace `If(cond) then {constants} else {work}` by the else-branch's nodes.
+fn inline_empty_guard_ifs(graph: &mut GraphProto) -> Result<usize, String> {
+    let mut count = 0;
+    let mut nodes = Vec::with_capacity(graph.node.len());
+    for node in std::mem::take(&mut graph.node) {
+        if node.op_type != "If" {
+            nodes.push(node);
+            continue;
+        }
+        let (Some(then_g), Some(else_g)) = (
+            attr(&node, "then_branch").and_then(|a| a.g.as_ref()),
+            attr(&node, "else_branch").and_then(|a| a.g.as_ref()),
+        ) else {
+            nodes.push(node);
+            continue;
+        };
+        let guard = then_g.node.iter().all(|n| n.op_type == "Constant")
+            && else_g.output.len() == node.output.len()
+            && else_g.input.is_empty();
+        if !guard {
+            nodes.push(node);
+            continue;
+        }
+        graph.initializer.extend(else_g.initializer.iter().cloned());
+        nodes.extend(else_g.node.iter().cloned());
+        for (inner, outer) in else_g.output.iter().zip(&node.output) {
+            nodes.push(NodeProto {
+                name: format!("{}.inlined.{}", node.name, outer),
+                op_type: "Identity".into(),
+                input: vec![inner.name.clone()],
+                output: vec![outer.clone()],
+                ..Default::default()
+            });
+        }
+        count += 1;
+    }
+    graph.node = nodes;
+    Ok(count)
+}
+
+/// Names a subgraph reads from its enclosing scope.
+fn outer_references(body: &GraphProto) -> Vec<String> {
+    let mut local: HashSet<&str> = body.input.iter().map(|i| i.name.as_str()).collect();
+    local.extend(body.initializer.iter().map(|i| i.name.as_str()));
+    let mut refs = Vec::new();
+    for n in &body.node {
+        for i in &n.input {
+            if !i.is_empty() && !local.contains(i.as_str()) && !refs.contains(i) {
+                refs.push(i.clone());
+            }
+        }
+        local.extend(n.output.iter().map(String::as_str));
+    }
+    refs
+}
+
+/// Remove torchvision's mask-pasting Loop and expose its inputs as graph outputs.
+///
+/// Recognised by shape: a `Loop` whose first output feeds an `Unsqueeze` that is a
+/// graph output, whose body reads a `Pad` output (the masks) and an int64 `Cast`
+/// output (the boxes) from the outer graph.
+fn cut_paste_loop(graph: &mut GraphProto) -> Result<Option<String>, String> {
+    let producers: HashMap<&str, &NodeProto> =
+        graph.node.iter().flat_map(|n| n.output.iter().map(move |o| (o.as_str(), n))).collect();
+    let outputs: HashSet<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
+    let mut found = None;
+    for (li, node) in graph.node.iter().enumerate() {
+        if node.op_type != "Loop" || node.output.is_empty() {
+            continue;
+        }
+        let Some(body) = attr(node, "body").and_then(|a| a.g.as_ref()) else { continue };
+        let Some((ui, unsqueeze)) = graph
+            .node
+            .iter()
+            .enumerate()
+            .find(|(_, n)| n.op_type == "Unsqueeze" && n.input.first() == Some(&node.output[0]))
+        else {
+            continue;
+        };
+        if unsqueeze.output.len() != 1 || !outputs.contains(unsqueeze.output[0].as_str()) {
+            continue;
+        }
+        let refs = outer_references(body);
+        let masks = refs.iter().find(|r| producers.get(r.as_str()).is_some_and(|p| p.op_type == "Pad"));
+        let boxes = refs.iter().find(|r| {
+            producers.get(r.as_str()).is_some_and(|p| {
+                p.op_type == "Cast"
+                    && attr(p, "to").is_some_and(|a| a.i == tensor_proto::DataType::Int64 as i64)
+                    && p.input.first().and_then(|i| producers.get(i.as_str())).is_some_and(|q| q.op_type == "Concat")
+            })
+        });
+        let (Some(masks), Some(boxes)) = (masks, boxes) else {
+            return Err(format!(
+                "Loop {:?} feeds output {:?} but does not read padded masks and int64 boxes; \
+                 is this a torchvision Mask R-CNN export?",
+                node.name, unsqueeze.output[0]
+            ));
+        };
+        found = Some((li, ui, masks.clone(), boxes.clone(), unsqueeze.output[0].clone()));
+        break;
+    }
+    let Some((li, ui, masks, boxes, out)) = found else { return Ok(None) };
+    let (first, second) = if li > ui { (li, ui) } else { (ui, li) };
+    graph.node.remove(first);
+    graph.node.remove(second);
+    let pos = graph.output.iter().position(|o| o.name == out).ok_or("pasted output vanished")?;
+    graph.output.remove(pos);
+    for (name, src) in [(PASTE_MASKS_OUTPUT, masks), (PASTE_BOXES_OUTPUT, boxes)] {
+        graph.node.push(NodeProto {
+            name: name.into(),
+            op_type: "Identity".into(),
+            input: vec![src],
+            output: vec![name.into()],
+            ..Default::default()
+        });
+        graph.output.push(ValueInfoProto { name: name.into(), ..Default::default() });
+    }
+    Ok(Some(out))
+}
+
+/// An int64 constant (initializer or `Constant` node) by name.
+fn constant_i64(graph: &GraphProto, name: &str) -> Option<Vec<i64>> {
+    let t = graph.initializer.iter().find(|t| t.name == name).or_else(|| {
+        graph
+            .node
+            .iter()
+            .find(|n| n.op_type == "Constant" && n.output.first().is_some_and(|o| o == name))
+            .and_then(|n| attr(n, "value"))
+            .and_then(|a| a.t.as_ref())
+    })?;
+    tensor_i64(t)
+}
+
+fn tensor_i64(t: &TensorProto) -> Option<Vec<i64>> {
+    if t.data_type != tensor_proto::DataType::Int64 as i32 {
+        return None;
+    }
+    if !t.int64_data.is_empty() {
+        return Some(t.int64_data.clone());
+    }
+    let raw = &t.raw_data;
+    (raw.len() % 8 == 0)
+        .then(|| raw.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().unwrap_or([0; 8]))).collect())
+}
+
+/// Constant slice ends at or above this mean "to the end" (torch writes `i64::MAX`) and
+/// are left alone; tract handles those.
+const MAX_CLAMPED_END: i64 = 1 << 31;
+
+/// `ends := Min(ends, Gather(Shape(data), axes))` on every Slice with constant positive
+/// ends below [`MAX_CLAMPED_END`], explicit axes and positive (or absent) steps.
+fn clamp_slices(graph: &mut GraphProto) -> usize {
+    let forward: Vec<bool> = graph
+        .node
+        .iter()
+        .map(|node| {
+            node.op_type == "Slice"
+                && node.input.len() >= 4
+                && !node.input[3].is_empty()
+                && constant_i64(graph, &node.input[2]).is_some_and(|e| e.iter().all(|&v| v > 0 && v < MAX_CLAMPED_END))
+                && match node.input.get(4).filter(|s| !s.is_empty()) {
+                    None => true,
+                    Some(steps) => constant_i64(graph, steps).is_some_and(|s| s.iter().all(|&v| v > 0)),
+                }
+        })
+        .collect();
+    let mut count = 0;
+    let mut nodes = Vec::with_capacity(graph.node.len());
+    for (mut node, forward) in std::mem::take(&mut graph.node).into_iter().zip(forward) {
+        if !forward {
+            nodes.push(node);
+            continue;
+        }
+        let base = format!("{}.clamp{count}", if node.name.is_empty() { &node.output[0] } else { &node.name });
+        let (shape, dims, ends) = (format!("{base}.shape"), format!("{base}.dims"), format!("{base}.ends"));
+        nodes.push(NodeProto {
+            name: shape.clone(),
+            op_type: "Shape".into(),
+            input: vec![node.input[0].clone()],
+            output: vec![shape.clone()],
+            ..Default::default()
+        });
+        nodes.push(NodeProto {
+            name: dims.clone(),
+            op_type: "Gather".into(),
+            input: vec![shape, node.input[3].clone()],
+            output: vec![dims.clone()],
+            attribute: vec![AttributeProto {
+                name: "axis".into(),
+                r#type: attribute_proto::AttributeType::Int as i32,
+                i: 0,
+                ..Default::default()
+            }],
+            ..Default::default()
+        });
+        nodes.push(NodeProto {
+            name: ends.clone(),
+            op_type: "Min".into(),
+            input: vec![node.input[2].clone(), dims],
+            output: vec![ends.clone()],
+            ..Default::default()
+        });
+        node.input[2] = ends;
+        nodes.push(node);
+        count += 1;
+    }
+    graph.node = nodes;
+    count
+}

@@ -1,0 +1,506 @@
+"""The instance segmenter the runtime ships: a light torchvision Mask R-CNN.
+
+``tricons`` segments objects with any torchvision Mask R-CNN exported by
+``torch.onnx.export``. This module builds, trains, exports and evaluates the
+one it ships (MobileNetV3-Large-FPN backbone, the six NOCS classes) and the
+random-weight ResNet-50-FPN export the runtime is checked against.
+
+Commands (run from tools/ with ``python -m tricons_pose.maskrcnn ...``):
+
+* ``train``  -- train the light model on a SynthNOCS recording (CPU), with
+  checkpoints and a progress log; resumable.
+* ``export`` -- export a checkpoint the way a user would
+  (``torch.onnx.export``, TorchScript exporter, opset 17) plus a model card.
+* ``export-r50`` -- an unmodified ``maskrcnn_resnet50_fpn`` with random weights.
+* ``evaluate`` -- bbox and mask AP50 / AP75 of an ONNX file on a recording
+  (onnxruntime), COCO-style 101-point interpolation, mean over classes.
+* ``fixture`` -- onnxruntime's outputs on one frame, as the JSON the Rust
+  tests compare against.
+
+Why MobileNetV3-Large-FPN: torchvision has no light Mask R-CNN, and this is
+the backbone of its fastest detector (``fasterrcnn_mobilenet_v3_large_fpn``):
+~5x fewer backbone FLOPs than ResNet-50-FPN, depthwise convolutions that run
+well on ARM cores. No pretrained weights are reachable here, so it trains from
+scratch with ordinary BatchNorm (torchvision's default FrozenBatchNorm only
+makes sense with ImageNet statistics).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .recording import CLASSES, Recording
+
+#: label 0 is background; label i (1..6) is CLASSES[i - 1].
+NUM_LABELS = len(CLASSES) + 1
+#: The shipped model works on images whose short side is resized to this.
+LIGHT_MIN_SIZE = 320
+LIGHT_MAX_SIZE = 432
+#: Instances smaller than this (pixels) are not training targets.
+MIN_TARGET_PIXELS = 16
+OPSET = 17
+OUTPUT_NAMES = ["boxes", "labels", "scores", "masks"]
+
+
+#: FPN and head width of the shipped model (torchvision's default is 256).
+LIGHT_CHANNELS = 128
+#: Hidden width of the box head's two FC layers (torchvision: 1024).
+LIGHT_BOX_HIDDEN = 256
+
+
+def build_light(min_size: int = LIGHT_MIN_SIZE, max_size: int = LIGHT_MAX_SIZE, score_thresh: float = 0.05):
+    """Mask R-CNN with a MobileNetV3-Large-FPN backbone and the six NOCS classes.
+
+    torchvision's own classes throughout (``MaskRCNN``, ``BackboneWithFPN``,
+    ``TwoMLPHead``, ``MaskRCNNHeads``); only the widths are smaller than
+    torchvision's ResNet-50 defaults: 128-channel FPN and mask head, a 256-wide
+    box head, MobileNetV3-Large with the reduced tail. ~4.5 M parameters
+    (ResNet-50-FPN Mask R-CNN: 44 M).
+    """
+    from torchvision.models import mobilenet_v3_large
+    from torchvision.models.detection import MaskRCNN
+    from torchvision.models.detection.anchor_utils import AnchorGenerator
+    from torchvision.models.detection.backbone_utils import BackboneWithFPN
+    from torchvision.models.detection.faster_rcnn import FastRCNNPredictor, TwoMLPHead
+    from torchvision.models.detection.mask_rcnn import MaskRCNNHeads, MaskRCNNPredictor
+    from torchvision.ops.feature_pyramid_network import LastLevelMaxPool
+
+    features = mobilenet_v3_large(weights=None, norm_layer=nn.BatchNorm2d, reduced_tail=True).features
+    # The last block at strides 8, 16 and 32 (torchvision's mobilenet_backbone(fpn=True) returns two
+    # stride-32 maps; objects here are 20-200 px at the working size, so finer levels matter).
+    strides, last_at = 2, {}
+    for i, block in enumerate(features):
+        if getattr(block, "_is_cn", False):
+            strides *= 2
+        last_at[strides] = i
+    taps = [last_at[8], last_at[16], last_at[32]]
+    backbone = BackboneWithFPN(
+        features,
+        {str(t): str(k) for k, t in enumerate(taps)},
+        [features[t].out_channels for t in taps],
+        LIGHT_CHANNELS,
+        extra_blocks=LastLevelMaxPool(),
+    )
+    # Four maps (strides 8, 16, 32, 64), two sizes and three aspect ratios per level.
+    anchors = AnchorGenerator(((16, 32), (48, 64), (96, 128), (192, 256)), ((0.5, 1.0, 2.0),) * 4)
+    c = LIGHT_CHANNELS
+    return MaskRCNN(
+        backbone,
+        num_classes=None,
+        rpn_anchor_generator=anchors,
+        box_head=TwoMLPHead(c * 7 * 7, LIGHT_BOX_HIDDEN),
+        box_predictor=FastRCNNPredictor(LIGHT_BOX_HIDDEN, NUM_LABELS),
+        mask_head=MaskRCNNHeads(c, [c] * 4, 1),
+        mask_predictor=MaskRCNNPredictor(c, c, NUM_LABELS),
+        min_size=min_size,
+        max_size=max_size,
+        rpn_pre_nms_top_n_test=500,
+        rpn_post_nms_top_n_test=300,
+        box_score_thresh=score_thresh,
+        box_detections_per_img=50,
+        box_batch_size_per_image=128,
+    )
+
+
+def build_r50(seed: int = 0):
+    """Unmodified torchvision ``maskrcnn_resnet50_fpn`` with random weights.
+
+    ``box_score_thresh=0`` (a constructor argument) so random weights still
+    yield detections; the box predictor's weights are scaled x20 so scores and
+    labels are not all near-ties (ties would make any comparison meaningless).
+    """
+    from torchvision.models.detection import maskrcnn_resnet50_fpn
+
+    torch.manual_seed(seed)
+    model = maskrcnn_resnet50_fpn(weights=None, weights_backbone=None, box_score_thresh=0.0)
+    with torch.no_grad():
+        model.roi_heads.box_predictor.cls_score.weight.mul_(20.0)
+    return model.eval()
+
+
+# --------------------------------------------------------------------------- data
+
+
+class SegData:
+    """A recording's frames as training targets, held in memory (uint8)."""
+
+    def __init__(self, root: str, limit: int | None = None):
+        from PIL import Image
+
+        rec = Recording(root)
+        n = len(rec) if limit is None else min(limit, len(rec))
+        self.images, self.targets = [], []
+        for i in range(n):
+            ann = rec.annotations(i)
+            if ann is None or ann.mask is None:
+                continue
+            img = np.asarray(Image.open(rec.root / rec.frames[i].color).convert("RGB"))
+            ids = np.asarray(Image.open(rec.root / ann.mask))
+            masks, labels, boxes = [], [], []
+            for inst in ann.instances:
+                m = ids == inst.id
+                if m.sum() < MIN_TARGET_PIXELS:
+                    continue
+                ys, xs = np.nonzero(m)
+                boxes.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+                masks.append(m)
+                labels.append(inst.class_id + 1)
+            self.images.append(img)
+            self.targets.append(
+                (
+                    np.asarray(boxes, np.float32).reshape(-1, 4),
+                    np.asarray(labels, np.int64),
+                    np.packbits(np.asarray(masks, bool).reshape(-1, *img.shape[:2]), axis=-1),
+                )
+            )
+
+    def __len__(self):
+        return len(self.images)
+
+    def item(self, i: int, flip: bool):
+        img = torch.from_numpy(self.images[i].copy()).permute(2, 0, 1).float() / 255.0
+        boxes, labels, packed = self.targets[i]
+        w = img.shape[2]
+        masks = np.unpackbits(packed, axis=-1, count=w).astype(np.uint8)
+        boxes = boxes.copy()
+        if flip:
+            img = img.flip(-1)
+            masks = masks[..., ::-1].copy()
+            boxes[:, [0, 2]] = w - boxes[:, [2, 0]]
+        return img, {"boxes": torch.from_numpy(boxes), "labels": torch.from_numpy(labels), "masks": torch.from_numpy(masks)}
+
+
+# --------------------------------------------------------------------------- training
+
+
+def train(args):
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    log = open(out / "train.log", "a", buffering=1)
+    t0 = time.time()
+    data = SegData(args.data, args.limit)
+    print(f"{len(data)} frames loaded in {time.time() - t0:.0f} s", file=log)
+    model = build_light(args.min_size, args.max_size)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=args.lr, weight_decay=1e-4)
+    step = 0
+    ckpt = out / "last.pt"
+    if ckpt.exists():
+        state = torch.load(ckpt, map_location="cpu")
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        step = state["step"]
+        print(f"resumed at step {step}", file=log)
+
+    def lr_at(s):
+        if s < args.warmup:
+            return args.lr * (s + 1) / args.warmup
+        frac = (s - args.warmup) / max(1, args.steps - args.warmup)
+        return args.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
+
+    model.train()
+    smooth = None
+    while step < args.steps:
+        idx = rng.integers(0, len(data), args.batch)
+        flips = rng.random(args.batch) < 0.5
+        imgs, tgts = zip(*(data.item(int(i), bool(f)) for i, f in zip(idx, flips)))
+        for g in opt.param_groups:
+            g["lr"] = lr_at(step)
+        losses = model(list(imgs), list(tgts))
+        loss = sum(losses.values())
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(params, 10.0)
+        opt.step()
+        step += 1
+        vals = {k: float(v.detach()) for k, v in losses.items()}
+        smooth = vals if smooth is None else {k: 0.95 * smooth[k] + 0.05 * vals[k] for k in vals}
+        if step % 20 == 0:
+            parts = " ".join(f"{k.replace('loss_', '')}={v:.3f}" for k, v in smooth.items())
+            print(f"step {step}/{args.steps} lr={lr_at(step):.2e} {parts} {time.time() - t0:.0f}s", file=log)
+        if step % args.ckpt_every == 0 or step == args.steps:
+            tmp = out / "last.pt.tmp"
+            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step, "args": vars(args)}, tmp)
+            os.replace(tmp, ckpt)
+    print("done", file=log)
+
+
+# --------------------------------------------------------------------------- export
+
+
+def export_onnx(model, path: Path, height: int = 480, width: int = 640, opset: int = OPSET):
+    """``torch.onnx.export`` as torchvision's docs show it (TorchScript exporter)."""
+    model.eval()
+    x = torch.rand(3, height, width)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".onnx.tmp")
+    torch.onnx.export(
+        model,
+        ([x],),
+        str(tmp),
+        opset_version=opset,
+        input_names=["image"],
+        output_names=OUTPUT_NAMES,
+        dynamic_axes={"image": [1, 2], "boxes": [0], "labels": [0], "scores": [0], "masks": [0, 2, 3]},
+        dynamo=False,
+    )
+    os.replace(tmp, path)
+
+
+def write_card(path: Path, onnx_name: str, extra: dict):
+    card = {
+        "format": "tricons-segmenter-card",
+        "version": 1,
+        "model": onnx_name,
+        "architecture": extra.pop("architecture"),
+        "input": {"name": "image", "layout": "CHW", "color": "rgb", "scale": 1.0 / 255.0},
+        "outputs": {"boxes": "boxes", "labels": "labels", "scores": "scores", "masks": "masks"},
+        "labels": {str(i + 1): c for i, c in enumerate(CLASSES)},
+        "score_threshold": 0.5,
+        "mask_threshold": 0.5,
+        **extra,
+    }
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(card, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def export_cmd(args):
+    model = build_light(args.min_size, args.max_size)
+    state = torch.load(args.checkpoint, map_location="cpu")
+    model.load_state_dict(state["model"])
+    out = Path(args.out)
+    export_onnx(model, out)
+    card = out.with_suffix(".json")
+    write_card(
+        card,
+        out.name,
+        {
+            "architecture": f"torchvision MaskRCNN, MobileNetV3-Large-FPN, min_size {args.min_size}",
+            "training": {"data": args.train_data, "steps": state["step"], "args": state.get("args", {})},
+        },
+    )
+    print(f"wrote {out} and {card}")
+
+
+def export_r50_cmd(args):
+    model = build_r50(args.seed)
+    out = Path(args.out)
+    export_onnx(model, out, opset=args.opset)
+    print(f"wrote {out}")
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def run_ort(path: str, img: np.ndarray, threads: int = 1):
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    sess = ort.InferenceSession(path, so, providers=["CPUExecutionProvider"])
+    x = (img.astype(np.float32) / 255.0).transpose(2, 0, 1).copy()
+    return sess, x
+
+
+def _ap(tp: np.ndarray, scores: np.ndarray, n_gt: int) -> float:
+    """COCO-style AP: precision envelope sampled at 101 recall points."""
+    if n_gt == 0:
+        return float("nan")
+    if len(scores) == 0:
+        return 0.0
+    order = np.argsort(-scores, kind="stable")
+    tp = tp[order].astype(np.float64)
+    ctp, cfp = np.cumsum(tp), np.cumsum(1 - tp)
+    recall = ctp / n_gt
+    precision = ctp / np.maximum(ctp + cfp, 1e-12)
+    precision = np.maximum.accumulate(precision[::-1])[::-1]
+    ap = 0.0
+    for r in np.linspace(0, 1, 101):
+        i = np.searchsorted(recall, r, side="left")
+        ap += precision[i] if i < len(precision) else 0.0
+    return ap / 101
+
+
+def _iou_boxes(a, b):
+    x0 = np.maximum(a[:, None, 0], b[None, :, 0])
+    y0 = np.maximum(a[:, None, 1], b[None, :, 1])
+    x1 = np.minimum(a[:, None, 2], b[None, :, 2])
+    y1 = np.minimum(a[:, None, 3], b[None, :, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    aa = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    bb = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    return inter / np.maximum(aa[:, None] + bb[None, :] - inter, 1e-12)
+
+
+def _iou_masks(a, b):
+    a = a.reshape(len(a), -1).astype(np.float32)
+    b = b.reshape(len(b), -1).astype(np.float32)
+    inter = a @ b.T
+    return inter / np.maximum(a.sum(1)[:, None] + b.sum(1)[None, :] - inter, 1e-12)
+
+
+def average_precision(frames, thresholds=(0.5, 0.75)):
+    """frames: list of (pred_boxes, pred_labels, pred_scores, pred_masks, gt_boxes, gt_labels, gt_masks).
+
+    Greedy matching in score order per class (COCO), no crowd regions. Returns
+    {"bbox": {0.5: ap, ...}, "mask": {...}} as means over the classes with
+    ground truth.
+    """
+    out = {}
+    for kind in ("bbox", "mask"):
+        out[kind] = {}
+        for thr in thresholds:
+            aps = []
+            for c in range(1, NUM_LABELS):
+                tps, scs, n_gt = [], [], 0
+                for pb, pl, ps, pm, gb, gl, gm in frames:
+                    p = pl == c
+                    g = gl == c
+                    n_gt += int(g.sum())
+                    if not p.any():
+                        continue
+                    order = np.argsort(-ps[p], kind="stable")
+                    if g.any():
+                        iou = _iou_boxes(pb[p], gb[g]) if kind == "bbox" else _iou_masks(pm[p], gm[g])
+                        iou = iou[order]
+                    matched = np.zeros(int(g.sum()), bool)
+                    for k in range(len(order)):
+                        hit = False
+                        if g.any():
+                            cand = np.where(~matched, iou[k], -1.0)
+                            j = int(np.argmax(cand))
+                            if cand[j] >= thr:
+                                matched[j] = True
+                                hit = True
+                        tps.append(hit)
+                    scs.extend(ps[p][order].tolist())
+                ap = _ap(np.asarray(tps, bool), np.asarray(scs, np.float64), n_gt)
+                if not math.isnan(ap):
+                    aps.append(ap)
+            out[kind][thr] = float(np.mean(aps)) if aps else float("nan")
+    return out
+
+
+def evaluate_cmd(args):
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = args.threads
+    sess = ort.InferenceSession(args.model, so, providers=["CPUExecutionProvider"])
+    data = SegData(args.data, args.limit)
+    frames = []
+    t0 = time.time()
+    for i in range(len(data)):
+        img = data.images[i]
+        x = (img.astype(np.float32) / 255.0).transpose(2, 0, 1).copy()
+        b, lab, s, m = sess.run(None, {"image": x})
+        gb, gl, packed = data.targets[i]
+        gm = np.unpackbits(packed, axis=-1, count=img.shape[1]).astype(bool)
+        frames.append((b, lab, s, m[:, 0] >= 0.5, gb, gl, gm))
+    ap = average_precision(frames)
+    res = {
+        "model": args.model,
+        "data": args.data,
+        "frames": len(frames),
+        "seconds": round(time.time() - t0, 1),
+        **{f"{k}_AP{int(t * 100)}": round(100 * v, 1) for k, d in ap.items() for t, v in d.items()},
+    }
+    print(json.dumps(res, indent=2))
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
+
+
+def rle(mask: np.ndarray) -> list[int]:
+    """Run lengths of a flattened (row-major) binary mask, starting with a 0-run."""
+    flat = mask.reshape(-1).astype(np.uint8)
+    change = np.flatnonzero(np.diff(np.concatenate([[0], flat, [1 - flat[-1]]])))
+    return np.diff(np.concatenate([[0], change])).tolist()
+
+
+def fixture_cmd(args):
+    from PIL import Image
+
+    img = np.asarray(Image.open(args.image).convert("RGB"))
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(args.model, providers=["CPUExecutionProvider"])
+    x = (img.astype(np.float32) / 255.0).transpose(2, 0, 1).copy()
+    b, lab, s, m = sess.run(None, {"image": x})
+    fx = {
+        "model": Path(args.model).name,
+        "image": Path(args.image).name,
+        "producer": f"onnxruntime {ort.__version__}",
+        "height": int(img.shape[0]),
+        "width": int(img.shape[1]),
+        "instances": [
+            {
+                "box": [float(v) for v in b[k]],
+                "label": int(lab[k]),
+                "score": float(s[k]),
+                "mask_rle": rle(m[k, 0] >= 0.5),
+            }
+            for k in range(len(s))
+        ],
+    }
+    Path(args.out).write_text(json.dumps(fx) + "\n")
+    print(f"{args.out}: {len(s)} instances")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m tricons_pose.maskrcnn", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    t = sub.add_parser("train", help="train the light Mask R-CNN (resumes from OUT/last.pt)")
+    t.add_argument("--data", required=True)
+    t.add_argument("--out", required=True)
+    t.add_argument("--steps", type=int, default=6000)
+    t.add_argument("--batch", type=int, default=4)
+    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--warmup", type=int, default=200)
+    t.add_argument("--threads", type=int, default=2)
+    t.add_argument("--limit", type=int)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--ckpt-every", type=int, default=100)
+    t.add_argument("--min-size", type=int, default=LIGHT_MIN_SIZE)
+    t.add_argument("--max-size", type=int, default=LIGHT_MAX_SIZE)
+    e = sub.add_parser("export", help="export a checkpoint to ONNX + model card")
+    e.add_argument("--checkpoint", required=True)
+    e.add_argument("--out", required=True)
+    e.add_argument("--train-data", default="SynthNOCS-train")
+    e.add_argument("--min-size", type=int, default=LIGHT_MIN_SIZE)
+    e.add_argument("--max-size", type=int, default=LIGHT_MAX_SIZE)
+    r = sub.add_parser("export-r50", help="random-weight maskrcnn_resnet50_fpn export")
+    r.add_argument("--out", required=True)
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--opset", type=int, default=OPSET)
+    v = sub.add_parser("evaluate", help="bbox / mask AP50, AP75 with onnxruntime")
+    v.add_argument("--model", required=True)
+    v.add_argument("--data", required=True)
+    v.add_argument("--limit", type=int)
+    v.add_argument("--threads", type=int, default=2)
+    v.add_argument("--json")
+    f = sub.add_parser("fixture", help="onnxruntime outputs on one image as JSON")
+    f.add_argument("--model", required=True)
+    f.add_argument("--image", required=True)
+    f.add_argument("--out", required=True)
+    args = ap.parse_args(argv)
+    {"train": train, "export": export_cmd, "export-r50": export_r50_cmd, "evaluate": evaluate_cmd, "fixture": fixture_cmd}[
+        args.cmd
+    ](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
