@@ -147,12 +147,14 @@ impl SegmenterCard {
     /// Read and check a card file.
     pub fn read(path: &Path) -> Result<SegmenterCard> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let card: SegmenterCard =
-            serde_json::from_str(&text).map_err(|e| Error::parse(path, Some(e.line()), e.to_string()))?;
         let bad = |m: String| Err(Error::parse(path, None, m));
-        if card.format != SEGMENTER_CARD_FORMAT {
-            return bad(format!("field `format`: expected {SEGMENTER_CARD_FORMAT:?}, found {:?}", card.format));
+        let value: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| Error::parse(path, Some(e.line()), e.to_string()))?;
+        let format = value.get("format").and_then(|f| f.as_str()).unwrap_or("");
+        if format != SEGMENTER_CARD_FORMAT {
+            return bad(format!("field `format`: expected {SEGMENTER_CARD_FORMAT:?}, found {format:?}"));
         }
+        let card: SegmenterCard = serde_json::from_value(value).map_err(|e| Error::parse(path, None, e.to_string()))?;
         if card.version != SEGMENTER_CARD_VERSION {
             return bad(format!(
                 "field `version`: this build reads version {SEGMENTER_CARD_VERSION}, found {}",

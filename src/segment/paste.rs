@@ -2,7 +2,7 @@
 //!
 //! Reproduces torchvision's ONNX mask pasting (`_onnx_paste_mask_in_image`, run by
 //! onnxruntime): the padded `(M + 2) x (M + 2)` probabilities are resized bilinearly
-//! (`align_corners=False`, onnxruntime's `pytorch_half_pixel` arithmetic) to the
+//! (`align_corners=False`, exported as `half_pixel`; onnxruntime's arithmetic) to the
 //! integer box's `(y1 - y0 + 1) x (x1 - x0 + 1)` and written where the box overlaps
 //! the image; everything else is 0. Only pixels inside the image are computed.
 
@@ -15,10 +15,11 @@ struct Tap {
     w_hi: f32,
 }
 
-/// onnxruntime's `pytorch_half_pixel` bilinear taps for output index `x` of `out` from `input`.
+/// onnxruntime's `half_pixel` bilinear taps (what torch exports for `align_corners=False`)
+/// for output index `x` of `out` from `input`. A 1-pixel-wide box samples the centre.
 fn tap(x: usize, out: usize, input: usize) -> Tap {
     let scale = out as f32 / input as f32;
-    let mut src = if out > 1 { (x as f32 + 0.5) / scale - 0.5 } else { 0.0 };
+    let mut src = (x as f32 + 0.5) / scale - 0.5;
     src = src.min((input - 1) as f32).max(0.0);
     let lo = (src as usize).min(input - 1);
     let hi = (lo + 1).min(input - 1);

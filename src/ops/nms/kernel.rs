@@ -125,7 +125,11 @@ pub fn nms(boxes: &[f32], scores: &[f32], p: &NmsParams) -> Vec<usize> {
         }
         let r = &rects[i];
         let range = cell_range(r);
-        let mut suppressed = unbinned.iter().any(|&k| rects[kept[k as usize]].suppresses(r, p.iou_threshold));
+        let mut suppressed = match range {
+            // A huge or non-finite candidate is compared with every kept box.
+            None => kept.iter().any(|&k| rects[k].suppresses(r, p.iou_threshold)),
+            Some(_) => unbinned.iter().any(|&k| rects[kept[k as usize]].suppresses(r, p.iou_threshold)),
+        };
         if !suppressed && let Some([a0, b0, a1, b1]) = range {
             'cells: for a in a0..=a1 {
                 for b in b0..=b1 {

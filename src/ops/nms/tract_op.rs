@@ -46,18 +46,16 @@ impl EvalOp for FastNms {
 impl FastNms {
     fn eval_nms(&self, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
         let mut rest = inputs.iter().skip(2);
-        let mut max_output = usize::MAX;
+        // Absent means 0 (ONNX default): nothing is selected, as onnxruntime does.
+        let mut max_output = 0usize;
         let mut iou_threshold = 0f32;
         let mut score_threshold = None;
         if self.has[0] {
             let v: i64 =
                 scalar(rest.next().context("missing max_output_boxes_per_class")?, "max_output_boxes_per_class")?;
-            // 0 means "no limit" in tract and onnxruntime alike.
-            if v > 0 {
-                max_output = usize::try_from(v).unwrap_or(usize::MAX);
-            } else if v < 0 {
-                max_output = 0;
-            }
+            // As onnxruntime (and the ONNX spec): 0 or less selects nothing. torchvision
+            // exports i64::MAX. (tract's own op reads 0 as "no limit".)
+            max_output = usize::try_from(v.max(0)).unwrap_or(usize::MAX);
         }
         if self.has[1] {
             iou_threshold = scalar(rest.next().context("missing iou_threshold")?, "iou_threshold")?;

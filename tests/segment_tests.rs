@@ -1,0 +1,214 @@
+//! Segmentation: RoiAlign and NMS kernels against onnxruntime fixtures
+//! (tools/golden/make_segment_fixtures.py), the grid NMS against the pairwise
+//! reference, mask pasting and run-length masks, and the segmenter's errors.
+
+use serde_json::Value;
+use tricons::ops::nms::{BoxFormat, NmsParams, nms, nms_reference};
+use tricons::ops::roi_align::{PoolMode, RoiAlignParams, roi_align};
+use tricons::output::segments::{mask_to_rle, rle_to_mask};
+use tricons::segment::Segmenter;
+use tricons::segment::paste::paste_mask;
+use tricons::synth::rng::Rng;
+
+fn fixture(name: &str) -> Value {
+    let path = format!("{}/tests/fixtures/segment/{name}", env!("CARGO_MANIFEST_DIR"));
+    serde_json::from_str(&std::fs::read_to_string(&path).expect("fixture")).expect("fixture JSON")
+}
+
+fn f32s(v: &Value) -> Vec<f32> {
+    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number") as f32).collect()
+}
+
+fn i64s(v: &Value) -> Vec<i64> {
+    v.as_array().expect("array").iter().map(|x| x.as_i64().expect("integer")).collect()
+}
+
+#[test]
+fn roi_align_matches_onnxruntime_in_avg_mode() {
+    let fx = fixture("roi_align.json");
+    let x = f32s(&fx["x_shape"]);
+    let shape = (x[0] as usize, x[1] as usize, x[2] as usize, x[3] as usize);
+    let (features, rois, batch) = (f32s(&fx["x"]), f32s(&fx["rois"]), i64s(&fx["batch_indices"]));
+    let mut checked = 0;
+    for case in fx["cases"].as_array().unwrap() {
+        let a = &case["attrs"];
+        if a["mode"] != "avg" {
+            continue;
+        }
+        let half_pixel = match a.get("coordinate_transformation_mode").and_then(Value::as_str) {
+            Some(m) => m == "half_pixel",
+            None => false, // opset 10: output_half_pixel
+        };
+        let p = RoiAlignParams {
+            output_height: a["output_height"].as_u64().unwrap() as usize,
+            output_width: a["output_width"].as_u64().unwrap() as usize,
+            sampling_ratio: a["sampling_ratio"].as_u64().unwrap() as usize,
+            spatial_scale: a["spatial_scale"].as_f64().unwrap() as f32,
+            half_pixel,
+            mode: PoolMode::Avg,
+        };
+        let want = f32s(&case["y"]);
+        let mut got = vec![0f32; want.len()];
+        roi_align(&features, shape, &rois, &batch, &p, &mut got).unwrap();
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert!((g - w).abs() <= 1e-5 + 1e-5 * w.abs(), "case {case:?}: y[{i}] = {g}, onnxruntime {w}");
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, 6);
+}
+
+#[test]
+fn roi_align_rejects_bad_batch_index_and_lengths() {
+    let p = RoiAlignParams {
+        output_height: 2,
+        output_width: 2,
+        sampling_ratio: 2,
+        spatial_scale: 1.0,
+        half_pixel: true,
+        mode: PoolMode::Avg,
+    };
+    let x = vec![1f32; 2 * 3 * 4];
+    let mut out = vec![0f32; 2 * 4];
+    assert!(roi_align(&x, (1, 2, 3, 4), &[0.0, 0.0, 2.0, 2.0], &[1], &p, &mut out[..8]).is_err());
+    assert!(roi_align(&x, (1, 2, 3, 4), &[0.0, 0.0, 2.0], &[0], &p, &mut out[..8]).is_err());
+    // A constant map pools to the constant inside the image.
+    roi_align(&x, (1, 2, 3, 4), &[0.5, 0.5, 2.5, 2.0], &[0], &p, &mut out[..8]).unwrap();
+    assert!(out.iter().all(|v| (v - 1.0).abs() < 1e-6), "{out:?}");
+}
+
+fn nms_params(case: &Value) -> NmsParams {
+    let max = case["max_output"].as_i64().unwrap();
+    NmsParams {
+        format: if case["center_point_box"] == 1 { BoxFormat::Center } else { BoxFormat::Corners },
+        max_output: max.max(0) as usize,
+        iou_threshold: case["iou_threshold"].as_f64().unwrap() as f32,
+        score_threshold: case["score_threshold"].as_f64().map(|v| v as f32),
+    }
+}
+
+#[test]
+fn nms_matches_onnxruntime() {
+    let fx = fixture("nms.json");
+    for case in fx["cases"].as_array().unwrap() {
+        let (boxes, scores) = (f32s(&case["boxes"]), f32s(&case["scores"]));
+        let n = case["n"].as_u64().unwrap() as usize;
+        let p = nms_params(case);
+        let mut got = Vec::new();
+        for class in 0..2 {
+            let s = &scores[class * n..(class + 1) * n];
+            let fast = nms(&boxes, s, &p);
+            assert_eq!(fast, nms_reference(&boxes, s, &p), "grid != reference");
+            got.extend(fast.into_iter().flat_map(|k| [0, class as i64, k as i64]));
+        }
+        assert_eq!(got, i64s(&case["selected"]), "case with n = {n}");
+    }
+}
+
+#[test]
+fn grid_nms_equals_reference_on_hard_sets() {
+    let mut rng = Rng::new(5);
+    for trial in 0..40 {
+        let n = 50 + trial * 37;
+        let mut boxes = Vec::with_capacity(n * 4);
+        let mut scores = Vec::with_capacity(n);
+        for i in 0..n {
+            // Lattice positions (exact duplicates and touching edges), a few huge and degenerate boxes.
+            let (y, x) = ((rng.next_u64() % 12) as f32 * 8.0, (rng.next_u64() % 12) as f32 * 8.0);
+            let (h, w) = match i % 17 {
+                0 => (500.0, 700.0),
+                1 => (0.0, 5.0),
+                _ => (8.0 + (rng.next_u64() % 3) as f32 * 4.0, 8.0 + (rng.next_u64() % 3) as f32 * 4.0),
+            };
+            boxes.extend([y, x, y + h, x + w]);
+            scores.push((rng.next_u64() % 50) as f32 / 50.0); // many ties
+        }
+        if trial % 5 == 0 {
+            boxes[4] = f32::NAN;
+            boxes[9] = f32::INFINITY;
+        }
+        for (thr, st) in [(0.5, None), (0.0, Some(0.3)), (0.9, None)] {
+            let p = NmsParams {
+                format: BoxFormat::Corners,
+                max_output: usize::MAX,
+                iou_threshold: thr,
+                score_threshold: st,
+            };
+            assert_eq!(nms(&boxes, &scores, &p), nms_reference(&boxes, &scores, &p), "trial {trial} thr {thr}");
+        }
+        let p = NmsParams { format: BoxFormat::Corners, max_output: 7, iou_threshold: 0.5, score_threshold: None };
+        let kept = nms(&boxes, &scores, &p);
+        assert!(kept.len() <= 7);
+        assert_eq!(kept, nms_reference(&boxes, &scores, &p));
+    }
+}
+
+#[test]
+fn rle_round_trips() {
+    let mut rng = Rng::new(9);
+    for len in [0usize, 1, 2, 17, 1000] {
+        let mask: Vec<bool> = (0..len).map(|_| rng.next_u64() % 3 == 0).collect();
+        let runs = mask_to_rle(&mask);
+        assert_eq!(rle_to_mask(&runs, len).as_deref(), Some(mask.as_slice()));
+        assert_eq!(runs.iter().map(|&r| r as usize).sum::<usize>(), len);
+    }
+    assert_eq!(mask_to_rle(&[true, true, false]), vec![0, 2, 1]);
+    assert!(rle_to_mask(&[1, 2], 4).is_none());
+}
+
+#[test]
+fn paste_clips_to_the_image_and_samples_centres() {
+    // A padded 4x4 mask (1-pixel zero border), inner 2x2 ones.
+    let mut m = vec![0f32; 16];
+    for (y, x) in [(1, 1), (1, 2), (2, 1), (2, 2)] {
+        m[y * 4 + x] = 1.0;
+    }
+    let (h, w) = (6, 8);
+    let mut out = vec![0f32; h * w];
+    // Box identical to the mask grid: a 4x4 copy at (2, 1).
+    paste_mask(&m, 4, [2, 1, 5, 4], h, w, &mut out);
+    for y in 0..h {
+        for x in 0..w {
+            let inside = (2..=3).contains(&y) && (3..=4).contains(&x);
+            assert_eq!(out[y * w + x] > 0.5, inside, "pixel ({x}, {y})");
+        }
+    }
+    // Partly outside the image: no panic, only in-image pixels written.
+    paste_mask(&m, 4, [-3, -2, 2, 9], h, w, &mut out);
+    assert!(out[..3].iter().any(|&v| v > 0.0));
+    assert!(out.iter().enumerate().all(|(i, &v)| v == 0.0 || i % w <= 2));
+    // A 1-pixel-wide box samples the mask's centre column, as onnxruntime does.
+    paste_mask(&m, 4, [4, 0, 4, 3], h, w, &mut out);
+    assert!(out[w + 4] > 0.5 && out[w + 5] == 0.0);
+    // Entirely outside: all zero.
+    paste_mask(&m, 4, [20, 20, 30, 30], h, w, &mut out);
+    assert!(out.iter().all(|&v| v == 0.0));
+}
+
+#[test]
+fn segmenter_refuses_non_mask_rcnn_and_garbage() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    // The pose graph is valid ONNX but not a Mask R-CNN; its card is not a segmenter card.
+    let pose = std::path::Path::new(root).join("models/tricons-pose.onnx");
+    let e = Segmenter::load(&pose).unwrap_err().to_string();
+    assert!(e.contains("tricons-pose.card.json") && e.contains("tricons-segmenter-card"), "{e}");
+    let dir = tempfile::tempdir().unwrap();
+    let bare = dir.path().join("pose.onnx");
+    std::fs::copy(&pose, &bare).unwrap();
+    let e = Segmenter::load(&bare).unwrap_err().to_string();
+    assert!(e.contains("pose.onnx") && e.contains("no graph output named \"boxes\""), "{e}");
+    let junk = dir.path().join("junk.onnx");
+    std::fs::write(&junk, b"\x08\x07garbage that is not protobuf \xff\xff\xff").unwrap();
+    let e = Segmenter::load(&junk).unwrap_err().to_string();
+    assert!(e.contains("junk.onnx"), "{e}");
+    let e = Segmenter::load(&dir.path().join("missing.onnx")).unwrap_err().to_string();
+    assert!(e.contains("missing.onnx"), "{e}");
+    let card = dir.path().join("bad.card.json");
+    std::fs::write(
+        &card,
+        r#"{"format": "tricons-segmenter-card", "version": 1, "model": "x.onnx", "labels": {"one": "mug"}}"#,
+    )
+    .unwrap();
+    let e = Segmenter::load(&card).unwrap_err().to_string();
+    assert!(e.contains("bad.card.json") && e.contains("labels"), "{e}");
+}
