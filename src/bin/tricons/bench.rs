@@ -19,7 +19,8 @@ use crate::replay::{DEFAULT_MODEL, DEFAULT_RECORDING};
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
     tricons bench                                        # shipped model, demo recording\n  \
-    tricons bench --model data/models/tricons-pose-paper.card.json --runs 5 --json data/bench/paper.json\n\n\
+    tricons bench --model data/models/tricons-pose-paper.card.json --runs 5 --json data/bench/paper.json\n  \
+    tricons bench --segmenter models/maskrcnn-light.card.json --runs 10\n\n\
     Per object: the graph on one instance (batch 1). Per frame: preprocessing plus one batched run\n\
     over all instances of a recording frame (ground-truth masks). Medians over --runs after --warmup;\n\
     tract runs on one thread.")]
@@ -43,6 +44,10 @@ pub struct Args {
     /// operators taking the most time.
     #[arg(long)]
     profile_graph: bool,
+    /// Benchmark this Mask R-CNN (card or graph) on the recording's first frame instead of
+    /// the pose model: frame latency, RoiAlign / NMS shares, NMS on 90k candidates.
+    #[arg(long)]
+    segmenter: Option<PathBuf>,
     /// Also write the report as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -50,15 +55,15 @@ pub struct Args {
 
 /// Latency statistics of one measurement, milliseconds.
 #[derive(Serialize)]
-struct Stats {
-    median_ms: f64,
-    p10_ms: f64,
-    p90_ms: f64,
+pub(crate) struct Stats {
+    pub(crate) median_ms: f64,
+    pub(crate) p10_ms: f64,
+    pub(crate) p90_ms: f64,
     samples: usize,
 }
 
 impl Stats {
-    fn of(durations: &[Duration]) -> Stats {
+    pub(crate) fn of(durations: &[Duration]) -> Stats {
         let mut ms: Vec<f64> = durations.iter().map(|d| d.as_secs_f64() * 1e3).collect();
         ms.sort_by(f64::total_cmp);
         let q = |p: f64| ms.get(((ms.len() - 1) as f64 * p).round() as usize).copied().unwrap_or(f64::NAN);
@@ -68,11 +73,11 @@ impl Stats {
 
 /// One custom operator's share of the graph time.
 #[derive(Serialize)]
-struct OpShare {
-    node_type: &'static str,
-    calls_per_run: f64,
-    ms_per_run: f64,
-    share_of_graph: f64,
+pub(crate) struct OpShare {
+    pub(crate) node_type: &'static str,
+    pub(crate) calls_per_run: f64,
+    pub(crate) ms_per_run: f64,
+    pub(crate) share_of_graph: f64,
 }
 
 #[derive(Serialize)]
@@ -102,6 +107,9 @@ struct Report {
 pub fn run(args: Args) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
+    }
+    if let Some(seg) = &args.segmenter {
+        return crate::bench_segment::run(seg, &args.recording, args.runs, args.warmup, args.json.as_deref());
     }
     let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();
@@ -249,7 +257,7 @@ fn print_node_profile(
 }
 
 /// Per-op time per run and share of the total graph time, from the profile counters.
-fn op_shares(runs: usize, graph_times: &[Duration]) -> (Vec<OpShare>, f64) {
+pub(crate) fn op_shares(runs: usize, graph_times: &[Duration]) -> (Vec<OpShare>, f64) {
     let graph_s: f64 = graph_times.iter().map(Duration::as_secs_f64).sum();
     let ops: Vec<OpShare> = profile::snapshot()
         .into_iter()
@@ -305,7 +313,7 @@ fn print_report(r: &Report) {
 }
 
 /// CPU model name and core count, for the report.
-fn machine() -> String {
+pub(crate) fn machine() -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|s| {

@@ -1,6 +1,7 @@
 //! The `tricons` command-line tool.
 
 mod bench;
+mod bench_segment;
 mod eval;
 mod inspect;
 mod progress;
@@ -32,7 +33,7 @@ enum Command {
     Eval(eval::Args),
     /// Print what a recording holds, or its ground truth as predictions.
     Inspect(inspect::Args),
-    /// Estimate poses over a recording with the pose model (ground-truth masks for now).
+    /// Replay a recording: Mask R-CNN masks (or ground truth) -> pose model -> predictions -> NOCS metrics.
     Replay(replay::Args),
     /// Segment frames with a Mask R-CNN (any torchvision export): masks and overlays out.
     Segment(segment::Args),

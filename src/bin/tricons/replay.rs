@@ -10,6 +10,7 @@ use tricons::output::overlay::draw_overlay;
 use tricons::output::predictions::{FramePredictions, PredInstance, write_predictions};
 use tricons::pose::{PoseEstimator, Skipped};
 use tricons::recording::open_recording;
+use tricons::segment::Segmenter;
 
 use crate::progress;
 
@@ -18,14 +19,24 @@ pub const DEFAULT_RECORDING: &str = "tests/data/synthnocs-demo";
 /// The shipped pose model's card.
 pub const DEFAULT_MODEL: &str = "models/tricons-pose.card.json";
 
+/// Where the instance masks come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum MaskSource {
+    /// The Mask R-CNN (--segmenter) on the colour image: the full pipeline.
+    Model,
+    /// The recording's ground-truth instance masks (isolates the pose model).
+    Gt,
+}
+
 /// Arguments of `tricons replay`.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
     tricons replay                                   # shipped model on the shipped demo recording\n  \
     tricons replay --recording data/synthnocs-test --out data/replay/test.jsonl\n  \
-    tricons replay --recording data/synthnocs-test --overlays data/overlays --iou corrected\n\n\
-    Instances come from the recording's ground-truth masks (segmentation comes with the\n\
-    segmentation model). With ground truth, the NOCS metrics are printed at the end.")]
+    tricons replay --recording data/synthnocs-test --overlays data/overlays --iou corrected\n  \
+    tricons replay --masks gt                        # ground-truth masks: the pose model alone\n\n\
+    Raw RGB-D -> Mask R-CNN (--segmenter) -> TriCons-Pose -> predictions. With ground truth,\n\
+    the NOCS metrics are printed at the end.")]
 pub struct Args {
     /// Recording directory (tricons format or NOCS dataset layout).
     #[arg(long, default_value = DEFAULT_RECORDING)]
@@ -33,6 +44,12 @@ pub struct Args {
     /// Pose model: its card (`*.card.json`) or graph (`*.onnx`, card beside it).
     #[arg(long, default_value = DEFAULT_MODEL)]
     model: PathBuf,
+    /// Instance masks: from the segmentation model, or the recording's ground truth.
+    #[arg(long, value_enum, default_value = "model")]
+    masks: MaskSource,
+    /// Mask R-CNN for `--masks model`: its card or graph (any torchvision export).
+    #[arg(long, default_value = crate::segment::DEFAULT_SEGMENTER)]
+    segmenter: PathBuf,
     /// Predictions to write (JSON Lines) [default: data/replay/<recording name>.jsonl].
     #[arg(long)]
     out: Option<PathBuf>,
@@ -61,6 +78,14 @@ pub fn run(args: Args) -> Result<()> {
         t_load.elapsed().as_secs_f64(),
         rec.describe()
     );
+    let segmenter = match args.masks {
+        MaskSource::Model => {
+            let seg = Segmenter::load(&args.segmenter).with_context(|| "loading the segmenter (--segmenter)")?;
+            log::info!("masks from {}", seg.onnx_path().display());
+            Some(seg)
+        }
+        MaskSource::Gt => None,
+    };
     let out = args.out.clone().unwrap_or_else(|| default_out(&args.recording));
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -73,35 +98,50 @@ pub fn run(args: Args) -> Result<()> {
     let t_run = Instant::now();
     for i in 0..rec.len() {
         let frame = rec.read_frame(i)?;
-        let Some(ann) = rec.read_annotations(i)? else {
-            bail!(
-                "frame {} of {} has no instance masks: replay needs ground-truth masks until segmentation lands",
-                rec.frame_id(i),
-                rec.describe()
-            );
+        // (class, score, 2D box, mask) per instance.
+        let detections: Vec<(tricons::Category, f64, Option<[f64; 4]>, Vec<bool>)> = match &segmenter {
+            Some(seg) => seg
+                .segment(&frame.color)
+                .with_context(|| format!("segmenting frame {}", rec.frame_id(i)))?
+                .into_iter()
+                .filter_map(|d| {
+                    let class = d.category?;
+                    Some((class, d.score as f64, Some(d.box_xyxy.map(f64::from)), d.mask))
+                })
+                .collect(),
+            None => {
+                let Some(ann) = rec.read_annotations(i)? else {
+                    bail!(
+                        "frame {} of {} has no instance masks: use --masks model (the default)",
+                        rec.frame_id(i),
+                        rec.describe()
+                    );
+                };
+                let Some(masks) = ann.instance_masks() else {
+                    bail!("frame {} of {} has annotations but no instance mask", rec.frame_id(i), rec.describe());
+                };
+                ann.instances.iter().zip(masks).map(|(g, m)| (g.class, 1.0, None, m)).collect()
+            }
         };
-        let Some(masks) = ann.instance_masks() else {
-            bail!("frame {} of {} has annotations but no instance mask", rec.frame_id(i), rec.describe());
-        };
-        let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+        let refs: Vec<&[bool]> = detections.iter().map(|d| d.3.as_slice()).collect();
         let outcomes = estimator.estimate(&frame, &refs, tricons::synth::rng::mix_seed(&[args.seed, i as u64]))?;
         let mut instances = Vec::new();
-        for (g, o) in ann.instances.iter().zip(outcomes) {
+        for (k, ((class, score, box2d, _), o)) in detections.iter().zip(outcomes).enumerate() {
             match o {
                 Ok(e) => {
                     estimated += 1;
                     instances.push(PredInstance {
-                        class: g.class,
-                        score: 1.0,
+                        class: *class,
+                        score: *score,
                         camera_from_object: e.camera_from_object,
                         size_m: e.size_m,
-                        box2d: None,
+                        box2d: *box2d,
                         mask: None,
                     })
                 }
                 Err(why) => {
                     skipped += 1;
-                    log::debug!("frame {} instance {}: skipped ({})", rec.frame_id(i), g.id, describe(&why));
+                    log::debug!("frame {} instance {k}: skipped ({})", rec.frame_id(i), describe(&why));
                 }
             }
         }

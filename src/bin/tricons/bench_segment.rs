@@ -1,0 +1,144 @@
+//! `tricons bench --segmenter`: Mask R-CNN frame latency, with the share of RoiAlign and
+//! NMS, and the NMS kernels on a frame with many candidates.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use serde::Serialize;
+use tricons::atomic::write_atomic;
+use tricons::ops::nms::{BoxFormat, NmsParams, nms, nms_reference};
+use tricons::ops::profile;
+use tricons::recording::open_recording;
+use tricons::segment::Segmenter;
+use tricons::synth::rng::Rng;
+
+use crate::bench::{OpShare, Stats, machine, op_shares};
+
+/// Candidates of the synthetic "many boxes" NMS frame (a low-threshold RPN over a
+/// 1333-pixel image yields tens of thousands).
+const NMS_CANDIDATES: usize = 90_000;
+
+#[derive(Serialize)]
+struct SegReport {
+    runtime: &'static str,
+    model: String,
+    machine: String,
+    threads: usize,
+    width: u32,
+    height: u32,
+    load_s: f64,
+    plan_s: f64,
+    detections: usize,
+    per_frame: Stats,
+    ops: Vec<OpShare>,
+    nms_candidates: usize,
+    nms_kept: usize,
+    nms_grid: Stats,
+    nms_pairwise: Stats,
+}
+
+/// Benchmark `model` on the first frame of `recording`.
+pub fn run(model: &Path, recording: &Path, runs: usize, warmup: usize, json: Option<&Path>) -> Result<()> {
+    let rec = open_recording(recording).with_context(|| "opening the recording (--recording)")?;
+    let frame = rec.read_frame(0)?;
+    let t = Instant::now();
+    let mut seg = Segmenter::load(model).with_context(|| "loading the segmenter (--segmenter)")?;
+    let load_s = t.elapsed().as_secs_f64();
+    seg.set_score_threshold(0.0);
+    let t = Instant::now();
+    seg.prepare(frame.color.width as usize, frame.color.height as usize)?;
+    let plan_s = t.elapsed().as_secs_f64();
+    let mut detections = 0;
+    for _ in 0..warmup {
+        detections = seg.segment(&frame.color)?.len();
+    }
+    profile::enable(true);
+    profile::reset();
+    let mut times = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let t = Instant::now();
+        detections = seg.segment(&frame.color)?.len();
+        times.push(t.elapsed());
+    }
+    let (ops, _) = op_shares(runs, &times);
+    profile::enable(false);
+
+    let (boxes, scores) = many_boxes(NMS_CANDIDATES);
+    let p = NmsParams { format: BoxFormat::Corners, max_output: usize::MAX, iou_threshold: 0.7, score_threshold: None };
+    let time = |f: &dyn Fn() -> Vec<usize>, n: usize| -> (Vec<Duration>, usize) {
+        let mut v = Vec::new();
+        let mut kept = 0;
+        for _ in 0..n {
+            let t = Instant::now();
+            kept = f().len();
+            v.push(t.elapsed());
+        }
+        (v, kept)
+    };
+    let (grid, nms_kept) = time(&|| nms(&boxes, &scores, &p), runs.max(3));
+    let (pairwise, kept_ref) = time(&|| nms_reference(&boxes, &scores, &p), 3);
+    anyhow::ensure!(kept_ref == nms_kept, "grid NMS kept {nms_kept}, pairwise {kept_ref}");
+    let report = SegReport {
+        runtime: "tract",
+        model: seg.onnx_path().display().to_string(),
+        machine: machine(),
+        threads: 1,
+        width: frame.color.width,
+        height: frame.color.height,
+        load_s,
+        plan_s,
+        detections,
+        per_frame: Stats::of(&times),
+        ops,
+        nms_candidates: NMS_CANDIDATES,
+        nms_kept,
+        nms_grid: Stats::of(&grid),
+        nms_pairwise: Stats::of(&pairwise),
+    };
+    println!(
+        "segmenter {} on {}x{} ({} detections at score >= 0): median {:.1} ms/frame (p10 {:.1}, p90 {:.1}), \
+         load {:.2} s + plan {:.2} s",
+        report.model,
+        report.width,
+        report.height,
+        detections,
+        report.per_frame.median_ms,
+        report.per_frame.p10_ms,
+        report.per_frame.p90_ms,
+        load_s,
+        plan_s
+    );
+    for o in &report.ops {
+        println!(
+            "  {:<18} {:>6.1} calls  {:>8.2} ms/frame  {:>5.1}%",
+            o.node_type,
+            o.calls_per_run,
+            o.ms_per_run,
+            100.0 * o.share_of_graph
+        );
+    }
+    println!(
+        "NMS on {NMS_CANDIDATES} candidates ({nms_kept} kept): grid {:.1} ms, pairwise {:.1} ms",
+        report.nms_grid.median_ms, report.nms_pairwise.median_ms
+    );
+    if let Some(path) = json {
+        write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// RPN-like candidates: clustered boxes of 8-300 px over a 1333 x 800 image, random scores.
+fn many_boxes(n: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut rng = Rng::new(42);
+    let mut u = || (rng.next_u64() >> 11) as f32 / (1u64 << 53) as f32;
+    let mut boxes = Vec::with_capacity(n * 4);
+    let mut scores = Vec::with_capacity(n);
+    for _ in 0..n {
+        let (cx, cy) = (u() * 1333.0, u() * 800.0);
+        let (w, h) = (8.0 + u() * u() * 300.0, 8.0 + u() * u() * 300.0);
+        boxes.extend([cy - h / 2.0, cx - w / 2.0, cy + h / 2.0, cx + w / 2.0]);
+        scores.push(u());
+    }
+    (boxes, scores)
+}
