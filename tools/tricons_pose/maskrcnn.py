@@ -49,6 +49,9 @@ LIGHT_MAX_SIZE = 432
 #: Instances smaller than this (pixels) are not training targets.
 MIN_TARGET_PIXELS = 16
 OPSET = 17
+#: Mask pixels whose onnxruntime probability lies within this of the 0.5 threshold are
+#: "ambiguous" in fixtures: float noise may flip them (random weights put many there).
+MASK_BAND = 1e-4
 OUTPUT_NAMES = ["boxes", "labels", "scores", "masks"]
 
 
@@ -428,18 +431,22 @@ def rle(mask: np.ndarray) -> list[int]:
     return np.diff(np.concatenate([[0], change])).tolist()
 
 
-def fixture_cmd(args):
+def ort_fixture(model: str, image: str, min_score: float = 0.0) -> dict:
+    """onnxruntime's detections on one PNG: boxes, labels, scores, 0.5-thresholded masks
+    and the ambiguous pixels (|p - 0.5| < MASK_BAND), masks as run lengths."""
+    import onnxruntime as ort
     from PIL import Image
 
-    img = np.asarray(Image.open(args.image).convert("RGB"))
-    import onnxruntime as ort
-
-    sess = ort.InferenceSession(args.model, providers=["CPUExecutionProvider"])
+    img = np.asarray(Image.open(image).convert("RGB"))
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 1
+    sess = ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
     x = (img.astype(np.float32) / 255.0).transpose(2, 0, 1).copy()
     b, lab, s, m = sess.run(None, {"image": x})
-    fx = {
-        "model": Path(args.model).name,
-        "image": Path(args.image).name,
+    keep = [k for k in range(len(s)) if s[k] >= min_score]
+    return {
+        "model": Path(model).name,
+        "image": Path(image).name,
         "producer": f"onnxruntime {ort.__version__}",
         "height": int(img.shape[0]),
         "width": int(img.shape[1]),
@@ -449,12 +456,58 @@ def fixture_cmd(args):
                 "label": int(lab[k]),
                 "score": float(s[k]),
                 "mask_rle": rle(m[k, 0] >= 0.5),
+                "ambiguous_rle": rle(np.abs(m[k, 0] - 0.5) < MASK_BAND),
             }
-            for k in range(len(s))
+            for k in keep
         ],
     }
+
+
+def decode_rle(runs, n: int) -> np.ndarray:
+    out = np.zeros(n, bool)
+    pos = 0
+    for k, r in enumerate(runs):
+        if k % 2:
+            out[pos : pos + r] = True
+        pos += r
+    return out
+
+
+def compare_detections(fixture: dict, record: dict) -> dict:
+    """Match tract's detections (a `tricons segment` record) to onnxruntime's one to one
+    (same label, nearest box), and report the worst box / score difference, the worst
+    mask IoU over non-ambiguous pixels and how many could not be matched."""
+    n = fixture["height"] * fixture["width"]
+    ours = list(record["instances"])
+    worst = {"matched": 0, "unmatched": 0, "box_px": 0.0, "score": 0.0, "mask_iou": 1.0}
+    for inst in fixture["instances"]:
+        cands = [
+            (max(abs(p - q) for p, q in zip(inst["box"], o["box"])), j)
+            for j, o in enumerate(ours)
+            if o["label"] == inst["label"]
+        ]
+        if not cands:
+            worst["unmatched"] += 1
+            continue
+        d, j = min(cands)
+        o = ours.pop(j)
+        a = decode_rle(inst["mask_rle"], n)
+        b = decode_rle(o["mask_rle"], n)
+        sure = ~decode_rle(inst["ambiguous_rle"], n)
+        union = (a | b)[sure].sum()
+        iou = (a & b)[sure].sum() / union if union else 1.0
+        worst["matched"] += 1
+        worst["box_px"] = max(worst["box_px"], d)
+        worst["score"] = max(worst["score"], abs(inst["score"] - o["score"]))
+        worst["mask_iou"] = min(worst["mask_iou"], float(iou))
+    worst["unmatched"] += len(ours)
+    return worst
+
+
+def fixture_cmd(args):
+    fx = ort_fixture(args.model, args.image, args.min_score)
     Path(args.out).write_text(json.dumps(fx) + "\n")
-    print(f"{args.out}: {len(s)} instances")
+    print(f"{args.out}: {len(fx['instances'])} instances")
 
 
 def main(argv=None):
@@ -493,6 +546,7 @@ def main(argv=None):
     f.add_argument("--model", required=True)
     f.add_argument("--image", required=True)
     f.add_argument("--out", required=True)
+    f.add_argument("--min-score", type=float, default=0.0)
     args = ap.parse_args(argv)
     {"train": train, "export": export_cmd, "export-r50": export_r50_cmd, "evaluate": evaluate_cmd, "fixture": fixture_cmd}[
         args.cmd

@@ -1,0 +1,69 @@
+"""The segmentation side: AP arithmetic on exact cases, run-length masks, and the
+runtime against onnxruntime on an unmodified torchvision maskrcnn_resnet50_fpn export
+(random weights, generated here, not committed)."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import REPO, find_tricons
+from tricons_pose import maskrcnn as mr
+
+
+def test_ap_exact_cases():
+    gb = np.array([[0, 0, 10, 10], [20, 20, 30, 30]], np.float32)
+    gl = np.array([1, 1])
+    gm = np.zeros((2, 4, 4), bool)
+    perfect = (gb, gl, np.array([0.9, 0.8], np.float32), gm, gb, gl, gm)
+    ap = mr.average_precision([perfect])
+    assert ap["bbox"][0.5] == pytest.approx(1.0)
+    # A false positive scored above both hits: precision 1/2 then 2/3 -> envelope 2/3 over all recall.
+    fp = np.array([[50, 50, 60, 60]], np.float32)
+    pb = np.concatenate([fp, gb])
+    frame = (pb, np.array([1, 1, 1]), np.array([0.95, 0.9, 0.8], np.float32), np.zeros((3, 4, 4), bool), gb, gl, gm)
+    assert mr.average_precision([frame])["bbox"][0.5] == pytest.approx(2 / 3)
+    # One of two found, no false positive: recall reaches 0.5 -> AP = 51/101.
+    half = (gb[:1], gl[:1], np.array([0.9], np.float32), gm[:1], gb, gl, gm)
+    assert mr.average_precision([half])["bbox"][0.5] == pytest.approx(51 / 101)
+    # IoU 0.6 hits at 0.5, misses at 0.75.
+    shifted = np.array([[0, 0, 10, 10]], np.float32) + np.array([2.5, 0, 2.5, 0], np.float32)
+    one = (shifted, gl[:1], np.array([0.9], np.float32), gm[:1], gb[:1], gl[:1], gm[:1])
+    ap = mr.average_precision([one])
+    assert ap["bbox"][0.5] == pytest.approx(1.0) and ap["bbox"][0.75] == pytest.approx(0.0)
+
+
+def test_rle_round_trip():
+    rng = np.random.default_rng(0)
+    m = rng.random(1000) < 0.3
+    runs = mr.rle(m)
+    assert sum(runs) == 1000
+    assert (mr.decode_rle(runs, 1000) == m).all()
+    assert mr.rle(np.array([True, True, False])) == [0, 2, 1]
+
+
+@pytest.fixture(scope="module")
+def r50(tmp_path_factory):
+    path = tmp_path_factory.mktemp("r50") / "maskrcnn_resnet50_fpn.onnx"
+    mr.export_r50_cmd(type("A", (), {"out": str(path), "seed": 0, "opset": mr.OPSET})())
+    return path
+
+
+def test_r50_export_runs_in_tricons_like_onnxruntime(r50, tmp_path):
+    image = REPO / "tests" / "data" / "synthnocs-demo" / "000000_color.png"
+    fx = mr.ort_fixture(str(r50), str(image))
+    assert len(fx["instances"]) == 100  # torchvision's detections_per_img
+    out = tmp_path / "seg"
+    subprocess.run(
+        [str(find_tricons()), "segment", "--model", str(r50), "--image", str(image), "--min-score", "0",
+         "--out", str(out)],
+        check=True,
+        capture_output=True,
+    )
+    record = json.loads((out / "segments.jsonl").read_text().splitlines()[0])
+    cmp = mr.compare_detections(fx, record)
+    assert cmp["unmatched"] == 0, cmp
+    assert cmp["box_px"] <= 0.5, cmp
+    assert cmp["score"] <= 1e-3, cmp
+    assert cmp["mask_iou"] >= 0.98, cmp
