@@ -212,3 +212,72 @@ fn segmenter_refuses_non_mask_rcnn_and_garbage() {
     let e = Segmenter::load(&card).unwrap_err().to_string();
     assert!(e.contains("bad.card.json") && e.contains("labels"), "{e}");
 }
+
+/// The shipped Mask R-CNN on fixture images, against onnxruntime's detections on the same
+/// file (tools: `python -m tricons_pose.maskrcnn fixture`): matched one to one by label
+/// and nearest box; boxes within 0.5 px, scores within 1e-3, mask IoU >= 0.98 off the
+/// pixels onnxruntime puts within 1e-4 of the threshold.
+#[test]
+fn shipped_segmenter_matches_onnxruntime() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    seg.set_score_threshold(0.0);
+    let mut total = 0;
+    for (fixture_name, image) in [
+        ("maskrcnn-light_000000.json", "tests/data/synthnocs-demo/000000_color.png"),
+        ("maskrcnn-light_000003.json", "tests/data/synthnocs-demo/000003_color.png"),
+        ("maskrcnn-light_blank.json", "tests/fixtures/segment/blank.png"),
+    ] {
+        let fx = fixture(fixture_name);
+        let img = tricons::image_io::read_color_png(&root.join(image)).unwrap();
+        let n = (img.width * img.height) as usize;
+        let mut ours = seg.segment(&img).unwrap();
+        let want = fx["instances"].as_array().unwrap();
+        assert_eq!(ours.len(), want.len(), "{fixture_name}: detection count");
+        for w in want {
+            let label = w["label"].as_i64().unwrap();
+            let wbox = f32s(&w["box"]);
+            let dist = |o: &tricons::segment::SegInstance| {
+                o.box_xyxy.iter().zip(&wbox).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max)
+            };
+            let (j, d) = ours
+                .iter()
+                .enumerate()
+                .filter(|(_, o)| o.label == label)
+                .map(|(j, o)| (j, dist(o)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap_or_else(|| panic!("{fixture_name}: no detection with label {label}"));
+            let o = ours.remove(j);
+            assert!(d <= 0.5, "{fixture_name}: box {:?} vs onnxruntime {wbox:?}", o.box_xyxy);
+            let ws = w["score"].as_f64().unwrap() as f32;
+            assert!((o.score - ws).abs() <= 1e-3, "{fixture_name}: score {} vs {ws}", o.score);
+            let runs =
+                |k: &str| w[k].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u32).collect::<Vec<_>>();
+            let wm = rle_to_mask(&runs("mask_rle"), n).unwrap();
+            let amb = rle_to_mask(&runs("ambiguous_rle"), n).unwrap();
+            let (mut inter, mut union) = (0usize, 0usize);
+            for k in 0..n {
+                if !amb[k] {
+                    inter += (wm[k] && o.mask[k]) as usize;
+                    union += (wm[k] || o.mask[k]) as usize;
+                }
+            }
+            let iou = if union == 0 { 1.0 } else { inter as f64 / union as f64 };
+            assert!(iou >= 0.98, "{fixture_name}: mask IoU {iou} (label {label}, box {wbox:?})");
+            total += 1;
+        }
+    }
+    assert!(total > 0);
+}
+
+#[test]
+fn blank_frame_gives_no_objects_at_the_card_threshold() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    let img = tricons::image_io::read_color_png(&root.join("tests/fixtures/segment/blank.png")).unwrap();
+    let found = seg.segment(&img).unwrap();
+    assert!(found.is_empty(), "{} detections on a blank frame", found.len());
+    // A frame of another size plans anew and still runs.
+    let small = tricons::ColorImage::new(320, 240);
+    assert!(seg.segment(&small).unwrap().is_empty());
+}

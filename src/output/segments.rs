@@ -115,9 +115,8 @@ pub fn draw_segments(image: &ColorImage, instances: &[SegInstance]) -> Result<Ve
     for inst in instances.iter().rev() {
         let color = inst.category.map(class_color).unwrap_or(OTHER_COLOR);
         for (k, _) in inst.mask.iter().enumerate().filter(|(_, m)| **m) {
-            for c in 0..3 {
-                let v = &mut img.data[k * 3 + c];
-                *v = ((1.0 - MASK_TINT) * *v as f32 + MASK_TINT * color[c] as f32).round() as u8;
+            for (v, &c) in img.data[k * 3..k * 3 + 3].iter_mut().zip(&color) {
+                *v = ((1.0 - MASK_TINT) * *v as f32 + MASK_TINT * c as f32).round() as u8;
             }
         }
         let [x0, y0, x1, y1] = inst.box_xyxy.map(|v| v.max(0.0) as usize);

@@ -93,6 +93,9 @@ pub struct SegmenterCard {
     pub version: u32,
     /// The ONNX file, relative to the card's directory.
     pub model: String,
+    /// SHA-256 of the ONNX file (hex); checked at load when present.
+    #[serde(default)]
+    pub sha256: Option<String>,
     /// Free text: backbone, input size.
     #[serde(default)]
     pub architecture: String,
@@ -133,6 +136,7 @@ impl SegmenterCard {
             format: SEGMENTER_CARD_FORMAT.into(),
             version: SEGMENTER_CARD_VERSION,
             model: model.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+            sha256: None,
             architecture: String::new(),
             input: InputSpec::default(),
             outputs: OutputNames::default(),

@@ -101,6 +101,13 @@ impl Segmenter {
     pub fn load_with_card(onnx_path: &Path, card: SegmenterCard) -> Result<Segmenter> {
         let bytes = std::fs::read(onnx_path).map_err(|e| Error::io(onnx_path, e))?;
         let err = |m: String| Error::model(onnx_path, m);
+        if let Some(want) = &card.sha256 {
+            use sha2::{Digest, Sha256};
+            let hex: String = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
+            if !hex.eq_ignore_ascii_case(want) {
+                return Err(err(format!("sha256 {hex} does not match its card ({want}): graph and card differ")));
+            }
+        }
         let onnx = crate::ops::onnx_with_custom_ops();
         let mut proto = onnx
             .proto_model_for_read(&mut bytes.as_slice())

@@ -39,11 +39,10 @@ pub struct RewriteReport {
 /// alone (the report says what was found); anything unexpected in a pattern is an error.
 pub fn rewrite(model: &mut ModelProto) -> Result<RewriteReport, String> {
     let graph = model.graph.as_mut().ok_or("the file holds no graph")?;
-    let mut report = RewriteReport::default();
-    report.ifs_inlined = inline_empty_guard_ifs(graph)?;
-    report.pasted_output = cut_paste_loop(graph)?;
-    report.slices_clamped = clamp_slices(graph);
-    Ok(report)
+    let ifs_inlined = inline_empty_guard_ifs(graph)?;
+    let pasted_output = cut_paste_loop(graph)?;
+    let slices_clamped = clamp_slices(graph);
+    Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output })
 }
 
 fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
@@ -191,7 +190,8 @@ fn tensor_i64(t: &TensorProto) -> Option<Vec<i64>> {
         return Some(t.int64_data.clone());
     }
     let raw = &t.raw_data;
-    (raw.len() % 8 == 0)
+    raw.len()
+        .is_multiple_of(8)
         .then(|| raw.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().unwrap_or([0; 8]))).collect())
 }
 

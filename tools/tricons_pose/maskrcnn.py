@@ -261,10 +261,13 @@ def export_onnx(model, path: Path, height: int = 480, width: int = 640, opset: i
 
 
 def write_card(path: Path, onnx_name: str, extra: dict):
+    import hashlib
+
     card = {
         "format": "tricons-segmenter-card",
         "version": 1,
         "model": onnx_name,
+        "sha256": hashlib.sha256((path.parent / onnx_name).read_bytes()).hexdigest(),
         "architecture": extra.pop("architecture"),
         "input": {"name": "image", "layout": "CHW", "color": "rgb", "scale": 1.0 / 255.0},
         "outputs": {"boxes": "boxes", "labels": "labels", "scores": "scores", "masks": "masks"},
@@ -284,7 +287,7 @@ def export_cmd(args):
     model.load_state_dict(state["model"])
     out = Path(args.out)
     export_onnx(model, out)
-    card = out.with_suffix(".json")
+    card = out.with_name(out.name.removesuffix(".onnx") + ".card.json")
     write_card(
         card,
         out.name,
@@ -422,6 +425,16 @@ def evaluate_cmd(args):
     print(json.dumps(res, indent=2))
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
+    if args.card:
+        card_path = Path(args.card)
+        card = json.loads(card_path.read_text())
+        card.setdefault("metrics", {})[Path(args.data).name] = {k: v for k, v in res.items() if "_AP" in k} | {
+            "frames": res["frames"],
+            "evaluator": "python -m tricons_pose.maskrcnn evaluate (onnxruntime, COCO 101-point AP, mean over classes)",
+        }
+        tmp = card_path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(card, indent=2) + "\n")
+        os.replace(tmp, card_path)
 
 
 def rle(mask: np.ndarray) -> list[int]:
@@ -504,6 +517,33 @@ def compare_detections(fixture: dict, record: dict) -> dict:
     return worst
 
 
+def bench_cmd(args):
+    """onnxruntime frame latency on one image, medians over --runs (1 thread by default)."""
+    import onnxruntime as ort
+    from PIL import Image
+
+    img = np.asarray(Image.open(args.image).convert("RGB"))
+    x = (img.astype(np.float32) / 255.0).transpose(2, 0, 1).copy()
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = args.threads
+    t0 = time.perf_counter()
+    sess = ort.InferenceSession(args.model, so, providers=["CPUExecutionProvider"])
+    load_s = time.perf_counter() - t0
+    for _ in range(args.warmup):
+        sess.run(None, {"image": x})
+    times = []
+    for _ in range(args.runs):
+        t = time.perf_counter()
+        n = len(sess.run(None, {"image": x})[2])
+        times.append(1e3 * (time.perf_counter() - t))
+    times.sort()
+    res = {"runtime": f"onnxruntime {ort.__version__}", "model": args.model, "threads": args.threads,
+           "size": list(img.shape[:2]), "detections": n, "load_s": round(load_s, 2),
+           "median_ms": round(float(np.median(times)), 1), "p10_ms": round(times[len(times) // 10], 1),
+           "p90_ms": round(times[(len(times) - 1) * 9 // 10], 1), "runs": args.runs}
+    print(json.dumps(res))
+
+
 def fixture_cmd(args):
     fx = ort_fixture(args.model, args.image, args.min_score)
     Path(args.out).write_text(json.dumps(fx) + "\n")
@@ -542,13 +582,20 @@ def main(argv=None):
     v.add_argument("--limit", type=int)
     v.add_argument("--threads", type=int, default=2)
     v.add_argument("--json")
+    v.add_argument("--card", help="also record the APs in this segmenter card's metrics")
     f = sub.add_parser("fixture", help="onnxruntime outputs on one image as JSON")
     f.add_argument("--model", required=True)
     f.add_argument("--image", required=True)
     f.add_argument("--out", required=True)
     f.add_argument("--min-score", type=float, default=0.0)
+    bn = sub.add_parser("bench", help="onnxruntime frame latency")
+    bn.add_argument("--model", required=True)
+    bn.add_argument("--image", required=True)
+    bn.add_argument("--runs", type=int, default=10)
+    bn.add_argument("--warmup", type=int, default=2)
+    bn.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
-    {"train": train, "export": export_cmd, "export-r50": export_r50_cmd, "evaluate": evaluate_cmd, "fixture": fixture_cmd}[
+    {"bench": bench_cmd, "train": train, "export": export_cmd, "export-r50": export_r50_cmd, "evaluate": evaluate_cmd, "fixture": fixture_cmd}[
         args.cmd
     ](args)
 

@@ -28,6 +28,14 @@ pub enum MaskSource {
     Gt,
 }
 
+/// One instance to estimate: class, score, optional 2D box, mask.
+struct Detection {
+    class: tricons::Category,
+    score: f64,
+    box2d: Option<[f64; 4]>,
+    mask: Vec<bool>,
+}
+
 /// Arguments of `tricons replay`.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
@@ -98,15 +106,19 @@ pub fn run(args: Args) -> Result<()> {
     let t_run = Instant::now();
     for i in 0..rec.len() {
         let frame = rec.read_frame(i)?;
-        // (class, score, 2D box, mask) per instance.
-        let detections: Vec<(tricons::Category, f64, Option<[f64; 4]>, Vec<bool>)> = match &segmenter {
+        let detections: Vec<Detection> = match &segmenter {
             Some(seg) => seg
                 .segment(&frame.color)
                 .with_context(|| format!("segmenting frame {}", rec.frame_id(i)))?
                 .into_iter()
                 .filter_map(|d| {
                     let class = d.category?;
-                    Some((class, d.score as f64, Some(d.box_xyxy.map(f64::from)), d.mask))
+                    Some(Detection {
+                        class,
+                        score: d.score as f64,
+                        box2d: Some(d.box_xyxy.map(f64::from)),
+                        mask: d.mask,
+                    })
                 })
                 .collect(),
             None => {
@@ -120,22 +132,26 @@ pub fn run(args: Args) -> Result<()> {
                 let Some(masks) = ann.instance_masks() else {
                     bail!("frame {} of {} has annotations but no instance mask", rec.frame_id(i), rec.describe());
                 };
-                ann.instances.iter().zip(masks).map(|(g, m)| (g.class, 1.0, None, m)).collect()
+                ann.instances
+                    .iter()
+                    .zip(masks)
+                    .map(|(g, mask)| Detection { class: g.class, score: 1.0, box2d: None, mask })
+                    .collect()
             }
         };
-        let refs: Vec<&[bool]> = detections.iter().map(|d| d.3.as_slice()).collect();
+        let refs: Vec<&[bool]> = detections.iter().map(|d| d.mask.as_slice()).collect();
         let outcomes = estimator.estimate(&frame, &refs, tricons::synth::rng::mix_seed(&[args.seed, i as u64]))?;
         let mut instances = Vec::new();
-        for (k, ((class, score, box2d, _), o)) in detections.iter().zip(outcomes).enumerate() {
+        for (k, (d, o)) in detections.iter().zip(outcomes).enumerate() {
             match o {
                 Ok(e) => {
                     estimated += 1;
                     instances.push(PredInstance {
-                        class: *class,
-                        score: *score,
+                        class: d.class,
+                        score: d.score,
                         camera_from_object: e.camera_from_object,
                         size_m: e.size_m,
-                        box2d: *box2d,
+                        box2d: d.box2d,
                         mask: None,
                     })
                 }

@@ -15,6 +15,9 @@ use crate::progress;
 /// The shipped Mask R-CNN's card.
 pub const DEFAULT_SEGMENTER: &str = "models/maskrcnn-light.card.json";
 
+/// Reads one frame's colour image on demand.
+type FrameLoader = Box<dyn Fn() -> Result<tricons::ColorImage>>;
+
 /// Arguments of `tricons segment`.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
@@ -58,7 +61,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     log::info!("segmenter {} loaded in {:.2} s", seg.onnx_path().display(), t_load.elapsed().as_secs_f64());
     // (frame id, loader) pairs: images or recording frames.
-    let frames: Vec<(String, Box<dyn Fn() -> Result<tricons::ColorImage>>)> = if args.image.is_empty() {
+    let frames: Vec<(String, FrameLoader)> = if args.image.is_empty() {
         let rec =
             std::rc::Rc::new(open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?);
         let n = args.limit.unwrap_or(usize::MAX).min(rec.len());
@@ -66,7 +69,7 @@ pub fn run(args: Args) -> Result<()> {
             .map(|i| {
                 let rec = rec.clone();
                 let id = rec.frame_id(i).to_string();
-                let load: Box<dyn Fn() -> Result<tricons::ColorImage>> = Box::new(move || Ok(rec.read_frame(i)?.color));
+                let load: FrameLoader = Box::new(move || Ok(rec.read_frame(i)?.color));
                 (id, load)
             })
             .collect()
@@ -76,7 +79,7 @@ pub fn run(args: Args) -> Result<()> {
             .map(|p| {
                 let id = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());
                 let p = p.clone();
-                let load: Box<dyn Fn() -> Result<tricons::ColorImage>> = Box::new(move || Ok(read_color_png(&p)?));
+                let load: FrameLoader = Box::new(move || Ok(read_color_png(&p)?));
                 (id, load)
             })
             .collect()
