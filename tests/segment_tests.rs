@@ -147,7 +147,7 @@ fn grid_nms_equals_reference_on_hard_sets() {
 fn rle_round_trips() {
     let mut rng = Rng::new(9);
     for len in [0usize, 1, 2, 17, 1000] {
-        let mask: Vec<bool> = (0..len).map(|_| rng.next_u64() % 3 == 0).collect();
+        let mask: Vec<bool> = (0..len).map(|_| rng.next_u64().is_multiple_of(3)).collect();
         let runs = mask_to_rle(&mask);
         assert_eq!(rle_to_mask(&runs, len).as_deref(), Some(mask.as_slice()));
         assert_eq!(runs.iter().map(|&r| r as usize).sum::<usize>(), len);
