@@ -54,16 +54,36 @@ def test_r50_export_runs_in_tricons_like_onnxruntime(r50, tmp_path):
     image = REPO / "tests" / "data" / "synthnocs-demo" / "000000_color.png"
     fx = mr.ort_fixture(str(r50), str(image))
     assert len(fx["instances"]) == 100  # torchvision's detections_per_img
-    out = tmp_path / "seg"
+    cmp = mr.compare_detections(fx, _segment(r50, image, tmp_path / "seg"))
+    assert cmp["unmatched"] == 0, cmp
+    assert cmp["box_px"] <= 0.5, cmp
+    assert cmp["score"] <= 1e-3, cmp
+    assert cmp["mask_iou"] >= 0.98, cmp
+
+
+def _segment(model, image, out):
     subprocess.run(
-        [str(find_tricons()), "segment", "--model", str(r50), "--image", str(image), "--min-score", "0",
+        [str(find_tricons()), "segment", "--model", str(model), "--image", str(image), "--min-score", "0",
          "--out", str(out)],
         check=True,
         capture_output=True,
     )
-    record = json.loads((out / "segments.jsonl").read_text().splitlines()[0])
-    cmp = mr.compare_detections(fx, record)
-    assert cmp["unmatched"] == 0, cmp
-    assert cmp["box_px"] <= 0.5, cmp
-    assert cmp["score"] <= 1e-3, cmp
+    return json.loads((out / "segments.jsonl").read_text().splitlines()[0])
+
+
+@pytest.mark.parametrize("opset", [11, 14, 17])
+def test_light_random_export_matches_onnxruntime_across_opsets(opset, tmp_path):
+    """The light architecture with random weights at the opsets torchvision supports
+    (RoiAlign's coordinate mode changes at 16)."""
+    import torch
+
+    torch.manual_seed(opset)
+    model = mr.build_light()
+    path = tmp_path / f"light-op{opset}.onnx"
+    mr.export_onnx(model, path, opset=opset)
+    image = REPO / "tests" / "data" / "synthnocs-demo" / "000003_color.png"
+    fx = mr.ort_fixture(str(path), str(image))
+    assert fx["instances"], "random light model detected nothing"
+    cmp = mr.compare_detections(fx, _segment(path, image, tmp_path / "seg"))
+    assert cmp["unmatched"] == 0 and cmp["box_px"] <= 0.5 and cmp["score"] <= 1e-3, cmp
     assert cmp["mask_iou"] >= 0.98, cmp
