@@ -87,3 +87,13 @@ def test_light_random_export_matches_onnxruntime_across_opsets(opset, tmp_path):
     cmp = mr.compare_detections(fx, _segment(path, image, tmp_path / "seg"))
     assert cmp["unmatched"] == 0 and cmp["box_px"] <= 0.5 and cmp["score"] <= 1e-3, cmp
     assert cmp["mask_iou"] >= 0.98, cmp
+
+
+def test_no_detection_runs_the_empty_branch(tmp_path):
+    """Nothing above the graph's score floor: the inlined empty-guard branch (ReduceMax over
+    zero boxes, NMS on nothing) must give zero instances, as onnxruntime does."""
+    path = tmp_path / "light-none.onnx"
+    mr.export_onnx(mr.build_light(score_thresh=0.99), path)
+    image = REPO / "tests" / "fixtures" / "segment" / "blank.png"
+    assert mr.ort_fixture(str(path), str(image))["instances"] == []
+    assert _segment(path, image, tmp_path / "seg")["instances"] == []
