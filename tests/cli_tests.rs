@@ -43,7 +43,7 @@ fn synth(dir: &Path, frames: &str, seed: &str) {
 #[test]
 fn every_command_has_help_with_an_example() {
     for cmd in
-        [&["--help"][..], &["synth", "--help"], &["eval", "--help"], &["inspect", "--help"], &["replay", "--help"]]
+        [&["--help"][..], &["synth", "--help"], &["eval", "--help"], &["inspect", "--help"], &["replay", "--help"], &["segment", "--help"]]
     {
         let o = tricons(cmd);
         assert!(o.status.success());
@@ -164,6 +164,8 @@ fn replay_of_the_demo_recording_writes_predictions_overlays_and_scores_them() {
         &repo("tests/data/synthnocs-demo"),
         "--model",
         &repo("models/tricons-pose.card.json"),
+        "--masks",
+        "gt",
         "--out",
         out.to_str().unwrap(),
         "--overlays",
@@ -191,6 +193,8 @@ fn replay_of_the_demo_recording_writes_predictions_overlays_and_scores_them() {
         &repo("tests/data/synthnocs-demo"),
         "--model",
         &repo("models/tricons-pose.onnx"),
+        "--masks",
+        "gt",
         "--out",
         out2.to_str().unwrap(),
         "--no-eval",
@@ -226,9 +230,71 @@ fn replay_fails_cleanly_on_a_missing_model_or_a_recording_without_masks() {
         rec.to_str().unwrap(),
         "--model",
         &repo("models/tricons-pose.card.json"),
+        "--masks",
+        "gt",
         "--out",
         out.to_str().unwrap(),
     ]);
     assert_clean_failure(&o, "no instance masks");
     assert!(!out.exists(), "nothing written on failure");
+    // With the segmentation model (the default) the same raw RGB-D frame is fine.
+    let o = tricons(&["replay", "--recording", rec.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(fs::read_to_string(&out).unwrap().lines().count(), 1);
+}
+
+#[test]
+fn replay_runs_the_full_pipeline_from_raw_rgbd_by_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("pred.jsonl");
+    let args = ["replay", "--recording", &repo("tests/data/synthnocs-demo"), "--out", out.to_str().unwrap()];
+    let o = tricons(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("NOCS metrics"));
+    let text = fs::read_to_string(&out).unwrap();
+    let lines: Vec<serde_json::Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 4);
+    let instances: Vec<&serde_json::Value> = lines.iter().flat_map(|l| l["instances"].as_array().unwrap()).collect();
+    assert!(instances.len() >= 9, "the shipped segmenter finds at least half of the 18 demo objects");
+    for inst in &instances {
+        let score = inst["score"].as_f64().unwrap();
+        assert!((0.5..=1.0).contains(&score), "score {score} below the card's threshold");
+        assert_eq!(inst["box2d"].as_array().unwrap().len(), 4);
+    }
+    // Deterministic end to end.
+    let out2 = dir.path().join("pred2.jsonl");
+    let o = tricons(&["replay", "--recording", &repo("tests/data/synthnocs-demo"), "--out", out2.to_str().unwrap(), "--no-eval"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(fs::read_to_string(&out2).unwrap(), text);
+}
+
+#[test]
+fn segment_writes_records_label_images_and_overlays() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("seg");
+    let o = tricons(&["segment", "--recording", &repo("tests/data/synthnocs-demo"), "--out", out.to_str().unwrap(), "--overlays"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = fs::read_to_string(out.join("segments.jsonl")).unwrap();
+    let records: Vec<tricons::output::segments::SegRecord> =
+        text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(records.len(), 4);
+    for r in &records {
+        let labels = tricons::image_io::read_label_png(&out.join(format!("{}_labels.png", r.frame))).unwrap();
+        assert_eq!((labels.width, labels.height), (640, 480));
+        for (k, inst) in r.instances.iter().enumerate() {
+            let mask = tricons::output::segments::rle_to_mask(&inst.mask_rle, 640 * 480).unwrap();
+            assert_eq!(mask.iter().filter(|&&m| m).count(), inst.pixels);
+            assert!(inst.class.is_some(), "the shipped card names every label");
+            // The label image shows the instance wherever no higher-scoring one covers it.
+            if k == 0 {
+                assert!(mask.iter().zip(&labels.data).all(|(&m, &l)| !m || l == 1));
+            }
+        }
+        assert!(out.join(format!("{}_segments.png", r.frame)).is_file());
+    }
+    // A corrupt PNG: a clean error naming it, nothing written for it.
+    let bad = dir.path().join("bad.png");
+    fs::write(&bad, b"\x89PNG\r\n\x1a\nnot really").unwrap();
+    let o = tricons(&["segment", "--image", bad.to_str().unwrap(), "--out", dir.path().join("b").to_str().unwrap()]);
+    assert_clean_failure(&o, "bad.png");
 }
