@@ -42,9 +42,14 @@ fn synth(dir: &Path, frames: &str, seed: &str) {
 
 #[test]
 fn every_command_has_help_with_an_example() {
-    for cmd in
-        [&["--help"][..], &["synth", "--help"], &["eval", "--help"], &["inspect", "--help"], &["replay", "--help"], &["segment", "--help"]]
-    {
+    for cmd in [
+        &["--help"][..],
+        &["synth", "--help"],
+        &["eval", "--help"],
+        &["inspect", "--help"],
+        &["replay", "--help"],
+        &["segment", "--help"],
+    ] {
         let o = tricons(cmd);
         assert!(o.status.success());
         let text = String::from_utf8_lossy(&o.stdout);
@@ -263,7 +268,14 @@ fn replay_runs_the_full_pipeline_from_raw_rgbd_by_default() {
     }
     // Deterministic end to end.
     let out2 = dir.path().join("pred2.jsonl");
-    let o = tricons(&["replay", "--recording", &repo("tests/data/synthnocs-demo"), "--out", out2.to_str().unwrap(), "--no-eval"]);
+    let o = tricons(&[
+        "replay",
+        "--recording",
+        &repo("tests/data/synthnocs-demo"),
+        "--out",
+        out2.to_str().unwrap(),
+        "--no-eval",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(fs::read_to_string(&out2).unwrap(), text);
 }
@@ -272,7 +284,14 @@ fn replay_runs_the_full_pipeline_from_raw_rgbd_by_default() {
 fn segment_writes_records_label_images_and_overlays() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("seg");
-    let o = tricons(&["segment", "--recording", &repo("tests/data/synthnocs-demo"), "--out", out.to_str().unwrap(), "--overlays"]);
+    let o = tricons(&[
+        "segment",
+        "--recording",
+        &repo("tests/data/synthnocs-demo"),
+        "--out",
+        out.to_str().unwrap(),
+        "--overlays",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = fs::read_to_string(out.join("segments.jsonl")).unwrap();
     let records: Vec<tricons::output::segments::SegRecord> =

@@ -40,33 +40,22 @@ struct Sample {
     w: [f32; 4],
 }
 
-fn bilinear_sample(mut y: f32, mut x: f32, height: usize, width: usize) -> Sample {
+/// onnxruntime's clamping of one sample coordinate on an axis of `size` cells: the two
+/// neighbouring cells and the fractional weight of the upper one.
+fn axis_taps(mut v: f32, size: usize) -> (usize, usize, f32) {
+    if v <= 0.0 {
+        v = 0.0;
+    }
+    let low = v as usize;
+    if low >= size - 1 { (size - 1, size - 1, 0.0) } else { (low, low + 1, v - low as f32) }
+}
+
+fn bilinear_sample(y: f32, x: f32, height: usize, width: usize) -> Sample {
     if y < -1.0 || y > height as f32 || x < -1.0 || x > width as f32 {
         return Sample::default();
     }
-    if y <= 0.0 {
-        y = 0.0;
-    }
-    if x <= 0.0 {
-        x = 0.0;
-    }
-    let (mut y_low, mut x_low) = (y as usize, x as usize);
-    let (y_high, x_high);
-    if y_low >= height - 1 {
-        y_low = height - 1;
-        y_high = y_low;
-        y = y_low as f32;
-    } else {
-        y_high = y_low + 1;
-    }
-    if x_low >= width - 1 {
-        x_low = width - 1;
-        x_high = x_low;
-        x = x_low as f32;
-    } else {
-        x_high = x_low + 1;
-    }
-    let (ly, lx) = (y - y_low as f32, x - x_low as f32);
+    let (y_low, y_high, ly) = axis_taps(y, height);
+    let (x_low, x_high, lx) = axis_taps(x, width);
     let (hy, hx) = (1.0 - ly, 1.0 - lx);
     Sample {
         pos: [y_low * width + x_low, y_low * width + x_high, y_high * width + x_low, y_high * width + x_high],
