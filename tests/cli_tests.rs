@@ -294,7 +294,7 @@ fn replay_runs_the_full_pipeline_from_raw_rgbd_by_default() {
     let o = tricons(&[
         "replay",
         "--recording",
-        &repo("tests/data/synthnocs-demo"),
+        rec.to_str().unwrap(),
         "--out",
         out2.to_str().unwrap(),
         "--no-eval",
