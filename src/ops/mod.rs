@@ -48,6 +48,20 @@ pub const NODE_TYPES: [&str; 7] = [
     "TriangleDescriptor",
 ];
 
+/// Node types whose wall time [`profile`] accounts: the `ai.tricons` ones and the two
+/// standard operators implemented here.
+pub const PROFILED_NODE_TYPES: [&str; 9] = [
+    "FurthestPointSample",
+    "GatherPoints",
+    "BallQuery",
+    "GroupPoints",
+    "ThreeNN",
+    "ThreeInterpolate",
+    "TriangleDescriptor",
+    "RoiAlign",
+    "NonMaxSuppression",
+];
+
 /// Register every `ai.tricons` operator, `RoiAlign` and the fast `NonMaxSuppression`
 /// with a tract ONNX loader.
 ///

@@ -7,7 +7,7 @@
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use super::NODE_TYPES;
+use super::PROFILED_NODE_TYPES as NODE_TYPES;
 
 static ENABLED: AtomicBool = AtomicBool::new(false);
 static NANOS: [AtomicU64; NODE_TYPES.len()] = [const { AtomicU64::new(0) }; NODE_TYPES.len()];
@@ -16,7 +16,7 @@ static CALLS: [AtomicU64; NODE_TYPES.len()] = [const { AtomicU64::new(0) }; NODE
 /// Totals of one node type since the last [`reset`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct OpTime {
-    /// ONNX node type (`ai.tricons`).
+    /// ONNX node type (`ai.tricons`, or RoiAlign / NonMaxSuppression).
     pub node_type: &'static str,
     /// Evaluations.
     pub calls: u64,
