@@ -97,3 +97,29 @@ def test_no_detection_runs_the_empty_branch(tmp_path):
     image = REPO / "tests" / "fixtures" / "segment" / "blank.png"
     assert mr.ort_fixture(str(path), str(image))["instances"] == []
     assert _segment(path, image, tmp_path / "seg")["instances"] == []
+
+
+def test_unnamed_outputs_fail_clearly_and_a_card_maps_them(tmp_path):
+    """An export without output_names: tricons refuses it naming the outputs it found; a
+    segmenter card that maps torch's names makes it run, with the card's class names."""
+    import onnx
+
+    path = tmp_path / "unnamed.onnx"
+    mr.export_onnx(mr.build_light(), path, output_names=None)
+    names = [o.name for o in onnx.load(str(path)).graph.output]
+    assert "boxes" not in names and len(names) == 4
+    image = REPO / "tests" / "data" / "synthnocs-demo" / "000000_color.png"
+    cmd = [str(find_tricons()), "segment", "--image", str(image), "--out", str(tmp_path / "seg"), "--min-score", "0"]
+    r = subprocess.run(cmd + ["--model", str(path)], capture_output=True, text=True)
+    assert r.returncode != 0 and "panicked" not in r.stderr
+    assert "no graph output named \"boxes\"" in r.stderr and names[0] in r.stderr, r.stderr
+    card = tmp_path / "unnamed.card.json"
+    card.write_text(json.dumps({
+        "format": "tricons-segmenter-card", "version": 1, "model": path.name,
+        "outputs": dict(zip(["boxes", "labels", "scores", "masks"], names)),
+        "labels": {str(i + 1): c for i, c in enumerate(mr.CLASSES)},
+    }))
+    r = subprocess.run(cmd + ["--model", str(card)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    record = json.loads((tmp_path / "seg" / "segments.jsonl").read_text().splitlines()[0])
+    assert record["instances"] and all(i["class"] in mr.CLASSES for i in record["instances"])

@@ -241,8 +241,9 @@ def train(args):
 # --------------------------------------------------------------------------- export
 
 
-def export_onnx(model, path: Path, height: int = 480, width: int = 640, opset: int = OPSET):
-    """``torch.onnx.export`` as torchvision's docs show it (TorchScript exporter)."""
+def export_onnx(model, path: Path, height: int = 480, width: int = 640, opset: int = OPSET, output_names=OUTPUT_NAMES):
+    """``torch.onnx.export`` as torchvision's docs show it (TorchScript exporter).
+    ``output_names=None`` leaves torch's numeric names (what a user gets without them)."""
     model.eval()
     x = torch.rand(3, height, width)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -253,8 +254,9 @@ def export_onnx(model, path: Path, height: int = 480, width: int = 640, opset: i
         str(tmp),
         opset_version=opset,
         input_names=["image"],
-        output_names=OUTPUT_NAMES,
-        dynamic_axes={"image": [1, 2], "boxes": [0], "labels": [0], "scores": [0], "masks": [0, 2, 3]},
+        output_names=output_names,
+        dynamic_axes={"image": [1, 2]}
+        | ({"boxes": [0], "labels": [0], "scores": [0], "masks": [0, 2, 3]} if output_names else {}),
         dynamo=False,
     )
     os.replace(tmp, path)
