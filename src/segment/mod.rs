@@ -276,12 +276,7 @@ impl Segmenter {
         };
         let boxes = view(self.slots.boxes, "boxes")?;
         let scores = view(self.slots.scores, "scores")?;
-        let labels = out[self.slots.labels]
-            .cast_to::<i64>()
-            .map_err(|e| Error::Inference(format!("labels: {e:#}")))?
-            .try_as_plain_ram()
-            .and_then(|t| t.as_slice::<i64>().map(<[i64]>::to_vec))
-            .map_err(|e| Error::Inference(format!("labels: {e:#}")))?;
+        let labels = i64_values(&out[self.slots.labels], "labels")?;
         let n = scores.len();
         if boxes.len() != n * 4 || labels.len() != n {
             return Err(Error::Inference(format!(
@@ -299,12 +294,7 @@ impl Segmenter {
         }
         if let Some((mi, bi)) = self.slots.paste {
             let probs = view(mi, "pasted masks")?;
-            let pbox = out[bi]
-                .cast_to::<i64>()
-                .map_err(|e| Error::Inference(format!("paste boxes: {e:#}")))?
-                .try_as_plain_ram()
-                .and_then(|t| t.as_slice::<i64>().map(<[i64]>::to_vec))
-                .map_err(|e| Error::Inference(format!("paste boxes: {e:#}")))?;
+            let pbox = i64_values(&out[bi], "paste boxes")?;
             let shape = out[mi].shape();
             let m = shape.last().copied().unwrap_or(0);
             if shape.len() != 4 || shape[0] != n || m == 0 || pbox.len() != n * 4 {
@@ -333,4 +323,11 @@ impl Segmenter {
         }
         Ok(det)
     }
+}
+
+/// An integer output (int64, or TDim where tract typed a shape computation) as `i64`s.
+fn i64_values(t: &TValue, what: &str) -> Result<Vec<i64>> {
+    let err = |e: TractError| Error::Inference(format!("{what}: {e:#}"));
+    let t = t.cast_to::<i64>().map_err(err)?;
+    t.try_as_plain_ram().and_then(|p| p.as_slice::<i64>().map(<[i64]>::to_vec)).map_err(err)
 }
