@@ -1,5 +1,6 @@
 //! Crash-safe file writes: write to a temporary file beside the target, then
-//! rename over it, so a reader never sees a torn file.
+//! rename over it, so a reader never sees a torn file; and the sha256 that pins a
+//! graph file to its card or quantization profile.
 
 use crate::error::{Error, Result};
 use std::fs;
@@ -51,4 +52,10 @@ mod tests {
         assert_eq!(fs::read(&path).unwrap(), b"old");
         assert!(!temporary_path(&path).exists());
     }
+}
+
+/// Lower-case hex sha256 of `bytes` (how cards and profiles pin a graph file).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }

@@ -52,6 +52,7 @@ pub mod metrics;
 pub mod ops;
 pub mod output;
 pub mod pose;
+pub mod quant;
 pub mod recording;
 pub mod segment;
 pub mod synth;

@@ -1,39 +1,12 @@
 //! The `tricons` binary as a user runs it: help texts, the synth -> inspect ->
 //! eval oracle path, and clear non-zero exits on bad input.
 
+mod common;
+
 use std::fs;
 use std::path::Path;
-use std::process::{Command, Output};
 
-/// The binary under test. `TRICONS_TEST_RUNNER` (e.g. `qemu-aarch64-static -L
-/// /usr/aarch64-linux-gnu`, set by cross/check.sh) prefixes it where the host
-/// cannot execute it directly.
-fn tricons(args: &[&str]) -> Output {
-    let exe = env!("CARGO_BIN_EXE_tricons");
-    let runner = std::env::var("TRICONS_TEST_RUNNER").unwrap_or_default();
-    let mut parts = runner.split_whitespace();
-    let mut cmd = match parts.next() {
-        Some(program) => {
-            let mut c = Command::new(program);
-            c.args(parts).arg(exe);
-            c
-        }
-        None => Command::new(exe),
-    };
-    cmd.args(args).env("RUST_LOG", "warn").output().unwrap()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// A failure the way the guide wants it: non-zero exit, a message, no panic.
-fn assert_clean_failure(o: &Output, needle: &str) {
-    let err = stderr(o);
-    assert!(!o.status.success(), "expected failure, got success; stderr: {err}");
-    assert!(!err.contains("panicked"), "panicked: {err}");
-    assert!(err.contains(needle), "stderr does not mention {needle:?}: {err}");
-}
+use common::cli::{assert_clean_failure, demo_subset, repo, stderr, tricons};
 
 fn synth(dir: &Path, frames: &str, seed: &str) {
     let o = tricons(&["synth", "--out", dir.to_str().unwrap(), "--frames", frames, "--seed", seed]);
@@ -154,10 +127,6 @@ fn bad_input_fails_cleanly_naming_the_file() {
     assert_clean_failure(&o, "version 2");
 }
 
-fn repo(path: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(path).to_str().unwrap().to_string()
-}
-
 #[test]
 fn replay_of_the_demo_recording_writes_predictions_overlays_and_scores_them() {
     let dir = tempfile::tempdir().unwrap();
@@ -206,40 +175,6 @@ fn replay_of_the_demo_recording_writes_predictions_overlays_and_scores_them() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(fs::read_to_string(&out2).unwrap(), text);
-}
-
-/// A copy of the first `frames` frames of the demo recording in `dir/rec`, with or without
-/// their annotations (keeps the slow qemu runs of the full pipeline short).
-fn demo_subset(dir: &Path, frames: usize, annotations: bool) -> std::path::PathBuf {
-    let rec = dir.join("rec");
-    fs::create_dir_all(&rec).unwrap();
-    let demo = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo");
-    let mut manifest: serde_json::Value =
-        serde_json::from_str(&fs::read_to_string(demo.join("manifest.json")).unwrap()).unwrap();
-    let list = manifest["frames"].as_array_mut().unwrap();
-    list.truncate(frames);
-    for f in list.iter_mut() {
-        let mut keys = vec!["color", "depth"];
-        if annotations {
-            keys.push("annotations");
-            let ann: serde_json::Value =
-                serde_json::from_str(&fs::read_to_string(demo.join(f["annotations"].as_str().unwrap())).unwrap())
-                    .unwrap();
-            for key in ["mask", "nocs"] {
-                if let Some(name) = ann[key].as_str() {
-                    fs::copy(demo.join(name), rec.join(name)).unwrap();
-                }
-            }
-        } else {
-            f.as_object_mut().unwrap().remove("annotations");
-        }
-        for key in keys {
-            let name = f[key].as_str().unwrap().to_string();
-            fs::copy(demo.join(&name), rec.join(&name)).unwrap();
-        }
-    }
-    fs::write(rec.join("manifest.json"), serde_json::to_string(&manifest).unwrap()).unwrap();
-    rec
 }
 
 #[test]

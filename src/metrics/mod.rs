@@ -15,6 +15,7 @@ pub mod ap;
 pub mod config;
 pub mod evaluate;
 pub mod iou;
+pub mod mask_ap;
 mod matching;
 pub mod pose_error;
 pub mod report;

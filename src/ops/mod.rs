@@ -30,6 +30,8 @@ pub mod gather;
 pub mod knn;
 pub mod nms;
 pub mod profile;
+pub mod qconv;
+pub mod qlinear;
 pub mod roi_align;
 pub mod three_nn;
 pub mod tract_glue;
@@ -37,9 +39,10 @@ pub mod triangle;
 
 pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 
-/// Node types whose wall time [`profile`] accounts: the `ai.tricons` ones, then the two
-/// standard operators implemented here (`RoiAlign`, `NonMaxSuppression`).
-pub const PROFILED_NODE_TYPES: [&str; 9] = [
+/// Node types whose wall time [`profile`] accounts: the `ai.tricons` ones of the
+/// exported graph, the two standard operators implemented here (`RoiAlign`,
+/// `NonMaxSuppression`), then the int8 nodes of the quantization rewrite.
+pub const PROFILED_NODE_TYPES: [&str; 11] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -49,6 +52,8 @@ pub const PROFILED_NODE_TYPES: [&str; 9] = [
     "TriangleDescriptor",
     "RoiAlign",
     "NonMaxSuppression",
+    "QLinear",
+    "QConv",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -70,6 +75,8 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("TriangleDescriptor", triangle::onnx::parse);
     reg.insert("RoiAlign", roi_align::onnx::parse);
     reg.insert("NonMaxSuppression", nms::onnx::parse);
+    reg.insert("QLinear", qlinear::onnx::parse);
+    reg.insert("QConv", qconv::onnx::parse);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.
@@ -101,6 +108,14 @@ pub enum OpError {
         need: usize,
         /// Actual point count.
         got: usize,
+    },
+    /// A kernel below the operator failed.
+    #[error("{op}: {message}")]
+    Kernel {
+        /// Node name.
+        op: &'static str,
+        /// What failed.
+        message: String,
     },
     /// A slice length disagrees with the stated dimensions.
     #[error("{op}: {what} has length {got}, expected {expected}")]

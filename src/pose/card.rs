@@ -3,7 +3,6 @@
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
-use sha2::{Digest, Sha256};
 
 use crate::error::{Error, Result};
 use crate::pose::preprocess::PreprocessConfig;
@@ -121,8 +120,7 @@ impl ModelCard {
     pub fn read_verified_graph(&self, card_path: &Path) -> Result<Vec<u8>> {
         let path = self.onnx_path(card_path);
         let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-        let digest = Sha256::digest(&bytes);
-        let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
+        let hex = crate::atomic::sha256_hex(&bytes);
         if !hex.eq_ignore_ascii_case(&self.onnx.sha256) {
             return Err(Error::model(
                 &path,

@@ -3,12 +3,15 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use tract_onnx::pb::ModelProto;
 use tract_onnx::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::frame::RgbdFrame;
 use crate::geometry::{Mat3, Pose, Vec3};
 use crate::pose::card::{ModelCard, card_path_for};
+use crate::quant::rewrite::ApplyReport;
+use crate::quant::{ModelKind, QuantProfile};
 use crate::pose::preprocess::{PoseInput, PreprocessConfig, build_input, prepare_instance, sample_indices};
 use crate::synth::rng::Rng;
 
@@ -78,6 +81,7 @@ pub struct PoseEstimator {
     card_path: PathBuf,
     cfg: PreprocessConfig,
     plan: Arc<TypedRunnableModel>,
+    quantized: Option<ApplyReport>,
 }
 
 impl std::fmt::Debug for PoseEstimator {
@@ -87,26 +91,73 @@ impl std::fmt::Debug for PoseEstimator {
 }
 
 impl PoseEstimator {
-    /// Load a model from its card (`*.card.json`) or graph (`*.onnx`, card beside it).
+    /// Load a model from its card (`*.card.json`), graph (`*.onnx`, card beside it) or
+    /// int8 quantization profile (`tricons quantize` output; the float model it names is
+    /// loaded and its listed nodes run in int8).
     ///
-    /// Checks the graph's hash against the card and its input shapes against the card's
-    /// N and S; a graph using an operator this build lacks is an error naming it.
+    /// Checks the graph's hash against the card (and the profile) and its input shapes
+    /// against the card's N and S; a graph using an operator this build lacks is an
+    /// error naming it.
     pub fn load(model: &Path) -> Result<PoseEstimator> {
+        if crate::quant::is_profile(model) {
+            let profile = QuantProfile::read(model)?;
+            if profile.kind != ModelKind::Pose {
+                return Err(Error::model(model, "field kind: this profile is not for a pose model"));
+            }
+            return Self::load_impl(&profile.model_path(model), Some((profile, model.to_path_buf())));
+        }
+        Self::load_impl(model, None)
+    }
+
+    fn load_impl(model: &Path, profile: Option<(QuantProfile, PathBuf)>) -> Result<PoseEstimator> {
         let card_path = card_path_for(model);
         let card = ModelCard::read(&card_path)?;
         let bytes = card.read_verified_graph(&card_path)?;
         let onnx_path = card.onnx_path(&card_path);
         let model_err = |e: TractError| Error::model(&onnx_path, format!("{e:#}"));
-        let inference = crate::ops::onnx_with_custom_ops().model_for_read(&mut bytes.as_slice()).map_err(model_err)?;
+        let onnx = crate::ops::onnx_with_custom_ops();
+        let mut proto = onnx.proto_model_for_read(&mut bytes.as_slice()).map_err(model_err)?;
+        let quantized = match &profile {
+            None => None,
+            Some((p, path)) => {
+                if !p.onnx_sha256.eq_ignore_ascii_case(&card.onnx.sha256) {
+                    return Err(Error::model(
+                        path,
+                        format!("onnx_sha256 {} is not the graph of {} ({})", p.onnx_sha256, card_path.display(), card.onnx.sha256),
+                    ));
+                }
+                Some(crate::quant::rewrite::apply(&mut proto, p).map_err(|m| Error::model(path, m))?)
+            }
+        };
+        let inference = onnx.model_for_proto_model(&proto).map_err(model_err)?;
         let typed = inference.into_typed().map_err(model_err)?;
         let cfg = card.preprocess_config();
         check_inputs(&typed, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
-        let plan = typed
-            .into_decluttered()
-            .and_then(|m| m.into_optimized())
-            .and_then(|m| m.into_runnable())
-            .map_err(model_err)?;
-        Ok(PoseEstimator { card, card_path, cfg, plan })
+        let plan = optimise(typed).map_err(model_err)?;
+        Ok(PoseEstimator { card, card_path, cfg, plan, quantized })
+    }
+
+    /// The float graph as loaded (hash-checked), for calibration.
+    pub fn float_proto(&self) -> Result<ModelProto> {
+        let bytes = self.card.read_verified_graph(&self.card_path)?;
+        crate::ops::onnx_with_custom_ops()
+            .proto_model_for_read(&mut bytes.as_slice())
+            .map_err(|e| Error::model(&self.card.onnx_path(&self.card_path), format!("{e:#}")))
+    }
+
+    /// A runnable plan of another version of this graph (e.g. with calibration outputs).
+    pub fn plan_variant(&self, proto: &ModelProto) -> Result<Arc<TypedRunnableModel>> {
+        let err = |e: TractError| Error::model(self.card.onnx_path(&self.card_path), format!("{e:#}"));
+        crate::ops::onnx_with_custom_ops()
+            .model_for_proto_model(proto)
+            .and_then(|m| m.into_typed())
+            .and_then(optimise)
+            .map_err(err)
+    }
+
+    /// What the int8 rewrite did, when loaded from a quantization profile.
+    pub fn quantized(&self) -> Option<&ApplyReport> {
+        self.quantized.as_ref()
     }
 
     /// The model card.
@@ -200,7 +251,8 @@ impl PoseEstimator {
         Ok(v)
     }
 
-    fn input_tensors(&self, inputs: &[PoseInput]) -> Result<TVec<TValue>> {
+    /// The graph's input tensors for `inputs` (one batch): rgb, pts, choose.
+    pub fn input_tensors(&self, inputs: &[PoseInput]) -> Result<TVec<TValue>> {
         let (n, s, b) = (self.cfg.n_points, self.cfg.crop_size, inputs.len());
         for (i, x) in inputs.iter().enumerate() {
             if x.rgb.len() != 3 * s * s || x.pts.len() != 3 * n || x.choose.len() != n {
@@ -217,6 +269,10 @@ impl PoseEstimator {
             Tensor::from_shape(&[b, n], &choose).map_err(tensor_err)?.into_tvalue(),
         ])
     }
+}
+
+fn optimise(typed: TypedModel) -> TractResult<Arc<TypedRunnableModel>> {
+    typed.into_decluttered().and_then(|m| m.into_optimized()).and_then(|m| m.into_runnable())
 }
 
 fn decode_outputs(out: &TVec<TValue>, b: usize) -> Result<Vec<InstanceOutcome>> {

@@ -19,7 +19,11 @@ use tract_onnx::prelude::*;
 pub use card::{InputSpec, OutputNames, SegmenterCard};
 pub use rewrite::{RewriteReport, rewrite};
 
+use tract_onnx::pb::ModelProto;
+
 use crate::category::Category;
+use crate::quant::rewrite::ApplyReport;
+use crate::quant::{ModelKind, QuantProfile};
 use crate::error::{Error, Result};
 use crate::frame::ColorImage;
 
@@ -67,6 +71,7 @@ pub struct Segmenter {
     input_index: usize,
     slots: OutputSlots,
     report: RewriteReport,
+    quantized: Option<ApplyReport>,
     plans: Mutex<HashMap<(usize, usize), Arc<TypedRunnableModel>>>,
 }
 
@@ -90,29 +95,60 @@ pub struct RawDetections {
 }
 
 impl Segmenter {
-    /// Load a model: a `*.card.json`, or a `*.onnx` (with its `<stem>.card.json` if
-    /// present, else as a bare torchvision export).
+    /// Load a model: a `*.card.json`, a `*.onnx` (with its `<stem>.card.json` if
+    /// present, else as a bare torchvision export), or an int8 quantization profile
+    /// (`tricons quantize` output) naming one of those.
     pub fn load(model: &Path) -> Result<Segmenter> {
+        if crate::quant::is_profile(model) {
+            let profile = QuantProfile::read(model)?;
+            if profile.kind != ModelKind::Segmenter {
+                return Err(Error::model(model, "field kind: this profile is not for a segmenter"));
+            }
+            let (card, onnx_path) = card::resolve(&profile.model_path(model))?;
+            return Self::load_impl(&onnx_path, card, Some((profile, model.to_path_buf())));
+        }
         let (card, onnx_path) = card::resolve(model)?;
         Self::load_with_card(&onnx_path, card)
     }
 
     /// Load `onnx_path` with an explicit card.
     pub fn load_with_card(onnx_path: &Path, card: SegmenterCard) -> Result<Segmenter> {
+        Self::load_impl(onnx_path, card, None)
+    }
+
+    /// Read `onnx_path`, check its hash against the card, apply the load-time rewrites.
+    fn read_rewritten(onnx_path: &Path, card: &SegmenterCard) -> Result<(ModelProto, RewriteReport, String)> {
         let bytes = std::fs::read(onnx_path).map_err(|e| Error::io(onnx_path, e))?;
         let err = |m: String| Error::model(onnx_path, m);
+        let hex = crate::atomic::sha256_hex(&bytes);
         if let Some(want) = &card.sha256 {
-            use sha2::{Digest, Sha256};
-            let hex: String = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
             if !hex.eq_ignore_ascii_case(want) {
                 return Err(err(format!("sha256 {hex} does not match its card ({want}): graph and card differ")));
             }
         }
-        let onnx = crate::ops::onnx_with_custom_ops();
-        let mut proto = onnx
+        let mut proto = crate::ops::onnx_with_custom_ops()
             .proto_model_for_read(&mut bytes.as_slice())
             .map_err(|e| err(format!("not a readable ONNX model: {e:#}")))?;
         let report = rewrite(&mut proto).map_err(&err)?;
+        Ok((proto, report, hex))
+    }
+
+    fn load_impl(onnx_path: &Path, card: SegmenterCard, profile: Option<(QuantProfile, PathBuf)>) -> Result<Segmenter> {
+        let err = |m: String| Error::model(onnx_path, m);
+        let onnx = crate::ops::onnx_with_custom_ops();
+        let (mut proto, report, sha256) = Self::read_rewritten(onnx_path, &card)?;
+        let quantized = match &profile {
+            None => None,
+            Some((p, path)) => {
+                if !p.onnx_sha256.eq_ignore_ascii_case(&sha256) {
+                    return Err(Error::model(
+                        path,
+                        format!("onnx_sha256 {} is not the graph {} ({sha256})", p.onnx_sha256, onnx_path.display()),
+                    ));
+                }
+                Some(crate::quant::rewrite::apply(&mut proto, p).map_err(|m| Error::model(path, m))?)
+            }
+        };
         let graph = proto.graph.as_ref().ok_or_else(|| err("the file holds no graph".into()))?;
         let outputs: Vec<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
         let find = |name: &str, what: &str| {
@@ -168,6 +204,7 @@ impl Segmenter {
             input_index,
             slots,
             report,
+            quantized,
             plans: Mutex::new(HashMap::new()),
         })
     }
@@ -198,18 +235,39 @@ impl Segmenter {
         if let Some(p) = plans.get(&(width, height)) {
             return Ok(p.clone());
         }
+        let plan = self.plan_for(self.model.clone(), width, height)?;
+        plans.insert((width, height), plan.clone());
+        Ok(plan)
+    }
+
+    fn plan_for(&self, model: InferenceModel, width: usize, height: usize) -> Result<Arc<TypedRunnableModel>> {
         let err = |e: TractError| Error::model(&self.onnx_path, format!("{e:#}"));
-        let plan = self
-            .model
-            .clone()
+        model
             .with_input_fact(self.input_index, f32::fact([3, height, width]).into())
             .and_then(|m| m.into_typed())
             .and_then(|m| m.into_decluttered())
             .and_then(|m| m.into_optimized())
             .and_then(|m| m.into_runnable())
-            .map_err(err)?;
-        plans.insert((width, height), plan.clone());
-        Ok(plan)
+            .map_err(err)
+    }
+
+    /// The float graph after the load-time rewrites (hash-checked), for calibration.
+    pub fn float_proto(&self) -> Result<ModelProto> {
+        Self::read_rewritten(&self.onnx_path, &self.card).map(|(p, _, _)| p)
+    }
+
+    /// A runnable plan of another version of this graph (e.g. with calibration
+    /// outputs) for `width x height` images.
+    pub fn plan_variant(&self, proto: &ModelProto, width: usize, height: usize) -> Result<Arc<TypedRunnableModel>> {
+        let model = crate::ops::onnx_with_custom_ops()
+            .model_for_proto_model(proto)
+            .map_err(|e| Error::model(&self.onnx_path, format!("{e:#}")))?;
+        self.plan_for(model, width, height)
+    }
+
+    /// What the int8 rewrite did, when loaded from a quantization profile.
+    pub fn quantized(&self) -> Option<&ApplyReport> {
+        self.quantized.as_ref()
     }
 
     /// Build the plan for `width x height` now (loading is otherwise lazy).

@@ -5,9 +5,11 @@ mod bench_segment;
 mod eval;
 mod inspect;
 mod progress;
+mod quantize;
 mod replay;
 mod segment;
 mod synth;
+mod validate;
 
 use clap::{Parser, Subcommand};
 
@@ -39,6 +41,10 @@ enum Command {
     Segment(segment::Args),
     /// Measure pose-model latency per object and per frame, with each custom op's share.
     Bench(bench::Args),
+    /// Quantize a pose or segmentation model to int8 from calibration frames (writes a profile).
+    Quantize(quantize::Args),
+    /// Compare a float model and its int8 profile on a recording: metrics, output errors, latency.
+    Validate(validate::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -51,6 +57,8 @@ fn main() -> std::process::ExitCode {
         Command::Replay(args) => replay::run(args),
         Command::Segment(args) => segment::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Quantize(args) => quantize::run(args),
+        Command::Validate(args) => validate::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

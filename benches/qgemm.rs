@@ -1,0 +1,99 @@
+//! int8 GEMM (`tricons::quant::gemm`) against tract's own f32 matmul, single-threaded.
+//!
+//! `cargo bench --bench qgemm`. Shapes: the pose network's per-point layers ([512 x 128] x
+//! [128 x 128], [512 x 384] x [384 x 128], [4096 x 128] x [128 x 128]) and a 3x3 convolution
+//! of 128 channels at 80 x 80 as a GEMM ([6400 x 1152] x [1152 x 128]). For each:
+//! `tract-f32` (a one-node TypedModel, EinSum `mk,kn->mn` with constant weights, optimised:
+//! tract's packed f32 kernels), `int8` ([`qgemm`] with the best kernel of the CPU, f32 output
+//! with bias and ReLU), `int8+quantize` (the f32 input quantised first, as a layer fed with
+//! floats does) and, for the convolution, `int8-nchw` (transposed output). Throughput is in
+//! multiply-adds (m * k * n).
+
+use std::hint::black_box;
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use tract_onnx::prelude::*;
+use tract_onnx::tract_core::ops::einsum::EinSum;
+use tricons::quant::gemm::{Kernel, Output, OutputStage, PackedWeights, qgemm, quantize_u7};
+
+/// Deterministic values in [-1, 1).
+fn values(len: usize, seed: u64) -> Vec<f32> {
+    let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    (0..len)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+        })
+        .collect()
+}
+
+/// tract's f32 `[m, k] x [k, n]` with the weights as a constant, optimised and runnable.
+fn tract_matmul(m: usize, k: usize, n: usize, w: &[f32]) -> TractResult<impl Fn(TValue) -> TractResult<TVec<TValue>>> {
+    let mut model = TypedModel::default();
+    let a = model.add_source("a", f32::fact([m, k]))?;
+    let b = model.add_const("w", Tensor::from_shape(&[k, n], w)?)?;
+    let out = model.wire_node("matmul", EinSum::new("mk,kn->mn".parse()?, f32::datum_type()), &[a, b])?;
+    model.select_output_outlets(&out)?;
+    let plan = model.into_optimized()?.into_runnable()?;
+    Ok(move |x: TValue| plan.run(tvec![x]))
+}
+
+fn bench_qgemm(c: &mut Criterion) {
+    let shapes = [
+        ("pts512-128x128", 512, 128, 128),
+        ("pts512-384x128", 512, 384, 128),
+        ("pts4096-128x128", 4096, 128, 128),
+        ("conv3x3-80x80-128ch", 6400, 1152, 128),
+    ];
+    let kernel = Kernel::best();
+    let mut group = c.benchmark_group(format!("qgemm-{kernel}"));
+    for (label, m, k, n) in shapes {
+        group.throughput(Throughput::Elements((m * k * n) as u64));
+        let x = values(m * k, 1);
+        let w = values(k * n, 2);
+        let bias = values(n, 3);
+
+        let run = tract_matmul(m, k, n, &w).expect("tract model");
+        let input: TValue = Tensor::from_shape(&[m, k], &x).expect("input").into();
+        group.bench_function(BenchmarkId::new("tract-f32", label), |b| {
+            b.iter(|| black_box(run(input.clone()).expect("tract run")))
+        });
+
+        // Symmetric per-tensor weight scale, u7 input in [-1, 1) with zero point 64.
+        let (sw, sa, za) = (1.0 / 127.0, 1.0 / 63.0, 64);
+        let wq: Vec<i8> = w.iter().map(|&v| (v / sw).round().clamp(-127.0, 127.0) as i8).collect();
+        let packed = PackedWeights::new(&wq, k, n).expect("pack");
+        let mut a = vec![0u8; m * k];
+        quantize_u7(&x, 1.0 / sa, za, &mut a).expect("quantize");
+        let scale = vec![sa * sw; n];
+        let stage = OutputStage { a_zero_point: za, scale: &scale, bias: Some(&bias), relu: true };
+        let mut out = vec![0f32; m * n];
+        group.bench_function(BenchmarkId::new("int8", label), |b| {
+            b.iter(|| qgemm(black_box(&a), m, k, &packed, &stage, Output::F32 { out: &mut out, ld: n }).expect("qgemm"))
+        });
+        group.bench_function(BenchmarkId::new("int8+quantize", label), |b| {
+            b.iter(|| {
+                quantize_u7(black_box(&x), 1.0 / sa, za, &mut a).expect("quantize");
+                qgemm(&a, m, k, &packed, &stage, Output::F32 { out: &mut out, ld: n }).expect("qgemm")
+            })
+        });
+        if m > 4096 {
+            group.bench_function(BenchmarkId::new("int8-nchw", label), |b| {
+                b.iter(|| {
+                    qgemm(black_box(&a), m, k, &packed, &stage, Output::F32Transposed { out: &mut out, ld: m })
+                        .expect("qgemm")
+                })
+            });
+        }
+    }
+    group.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(20);
+    targets = bench_qgemm
+}
+criterion_main!(benches);

@@ -1,0 +1,99 @@
+//! ONNX parsing and shape rules of `QConv`.
+
+use std::sync::Arc;
+
+use tract_onnx::model::ParsingContext;
+use tract_onnx::pb::NodeProto;
+use tract_onnx::tract_hir::internal::*;
+
+use crate::ops::qlinear::onnx::{activation_type, parse_layer};
+use crate::ops::tract_glue::{expand_op, onnx_rules};
+use crate::quant::Int8Layer;
+
+/// `QConv(X (N, C, H, W) f32 or u8) -> (N, Cout, Ho, Wo) f32`.
+#[derive(Clone, Debug)]
+pub struct QConv {
+    /// The node's name (identity for tract's op comparisons).
+    pub name: String,
+    /// The fused layer (`k = C * kh * kw`).
+    pub layer: Arc<Int8Layer>,
+    /// The input arrives as u7 (`u8`).
+    pub input_u7: bool,
+    /// Kernel height and width.
+    pub kernel: [usize; 2],
+    /// Strides.
+    pub strides: [usize; 2],
+    /// Pads (top, left, bottom, right).
+    pub pads: [usize; 4],
+    /// Dilations.
+    pub dilations: [usize; 2],
+}
+
+impl PartialEq for QConv {
+    fn eq(&self, other: &Self) -> bool {
+        self.name == other.name && Arc::ptr_eq(&self.layer, &other.layer)
+    }
+}
+impl Eq for QConv {}
+impl std::hash::Hash for QConv {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.name.hash(state)
+    }
+}
+
+impl QConv {
+    /// Output size of one axis (`None` if the kernel does not fit).
+    pub fn out_len(&self, axis: usize, size: usize) -> Option<usize> {
+        let span = self.dilations[axis] * (self.kernel[axis] - 1) + 1;
+        let padded = size + self.pads[axis] + self.pads[axis + 2];
+        (padded >= span).then(|| (padded - span) / self.strides[axis] + 1)
+    }
+}
+
+/// Build the op from its node.
+pub fn parse(_ctx: &ParsingContext, node: &NodeProto) -> TractResult<(Box<dyn InferenceOp>, Vec<String>)> {
+    let name = &node.name;
+    let (layer, input_u7) = parse_layer(node)?;
+    ensure!(layer.output_params().is_none(), "{name}: QConv writes floats only");
+    let two = |attr: &str| -> TractResult<[usize; 2]> {
+        let v: Vec<usize> = node.get_attr_vec(attr)?;
+        ensure!(v.len() == 2 && v.iter().all(|&x| x > 0), "{name}: {attr} must be two positive values, got {v:?}");
+        Ok([v[0], v[1]])
+    };
+    let (kernel, strides, dilations) = (two("kernel_shape")?, two("strides")?, two("dilations")?);
+    let pads: Vec<usize> = node.get_attr_vec("pads")?;
+    ensure!(pads.len() == 4, "{name}: pads must have 4 values, got {pads:?}");
+    ensure!(layer.k() % (kernel[0] * kernel[1]) == 0, "{name}: weight rows {} vs kernel {kernel:?}", layer.k());
+    expand_op(QConv {
+        name: name.clone(),
+        layer: Arc::new(layer),
+        input_u7,
+        kernel,
+        strides,
+        pads: [pads[0], pads[1], pads[2], pads[3]],
+        dilations,
+    })
+}
+
+onnx_rules!(QConv, "QConv", inputs: 1, outputs: 1, |op, s, inputs, outputs| {
+    s.equals(&inputs[0].datum_type, activation_type(op.input_u7))?;
+    s.equals(&outputs[0].datum_type, f32::datum_type())?;
+    s.equals(&inputs[0].rank, 4)?;
+    s.equals(&outputs[0].rank, 4)?;
+    s.equals(&inputs[0].shape[0], &outputs[0].shape[0])?;
+    let c_in = op.layer.k() / (op.kernel[0] * op.kernel[1]);
+    s.equals(&inputs[0].shape[1], c_in.to_dim())?;
+    s.equals(&outputs[0].shape[1], op.layer.n().to_dim())?;
+    for axis in 0..2 {
+        let op = op.clone();
+        s.given(&inputs[0].shape[2 + axis], move |s, d| {
+            if let (Ok(d), o) = (d.to_usize(), &outputs[0].shape[2 + axis]) {
+                if let Some(len) = op.out_len(axis, d) {
+                    s.equals(o, len.to_dim())?;
+                }
+            }
+            Ok(())
+        })?;
+    }
+    Ok(())
+});

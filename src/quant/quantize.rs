@@ -1,0 +1,182 @@
+//! `tricons quantize` as a library call: run the float model over a calibration
+//! recording through its real preprocessing (pose: ground-truth or segmenter masks,
+//! the runtime's point sampling and crops, custom ops included; segmenter: whole
+//! images), collect the candidates' activation statistics and build the profile.
+
+use std::path::{Path, PathBuf};
+
+use tract_onnx::prelude::*;
+
+use super::calibrate::{ProfileTarget, QuantizeOptions, StatsCollector, build_profile, observed_tensors};
+use super::profile::{CalibrationInfo, ModelKind, QuantProfile};
+use crate::error::{Error, Result};
+use crate::pose::PoseEstimator;
+use crate::recording::{Recording, open_recording};
+use crate::segment::Segmenter;
+
+/// What to quantize and with which data.
+#[derive(Clone, Debug)]
+pub struct QuantizeJob {
+    /// The float model: a pose card/graph or a segmenter card/graph.
+    pub model: PathBuf,
+    /// The calibration recording.
+    pub calibration: PathBuf,
+    /// Where the profile will be written (the model path is stored relative to it).
+    pub out: PathBuf,
+    /// Use at most this many frames (all when `None`).
+    pub max_frames: Option<usize>,
+    /// Pose only: masks for frames without ground truth come from this segmenter.
+    pub segmenter: Option<PathBuf>,
+    /// Pose only: seed of the point sampling.
+    pub seed: u64,
+    /// Range method, SQNR floor, forced-float nodes, chaining.
+    pub options: QuantizeOptions,
+}
+
+/// Which runtime model `path` is: a pose card (or graph with its card) or a segmenter.
+pub fn model_kind(path: &Path) -> ModelKind {
+    let card = crate::pose::card::card_path_for(path);
+    if crate::pose::ModelCard::read(&card).is_ok() { ModelKind::Pose } else { ModelKind::Segmenter }
+}
+
+/// Run the calibration and build the profile (not written; see [`QuantProfile::write`]).
+/// `progress(done, total)` is called after every frame.
+pub fn quantize(job: &QuantizeJob, progress: &dyn Fn(usize, usize)) -> Result<QuantProfile> {
+    let rec = open_recording(&job.calibration)?;
+    let frames = job.max_frames.map_or(rec.len(), |m| m.min(rec.len()));
+    if frames == 0 {
+        return Err(Error::InvalidArgument(format!(
+            "calibration set {}: no frames",
+            job.calibration.display()
+        )));
+    }
+    let kind = model_kind(&job.model);
+    let (proto, stats, runs, sha) = match kind {
+        ModelKind::Pose => calibrate_pose(job, rec.as_ref(), frames, progress)?,
+        ModelKind::Segmenter => calibrate_segmenter(job, rec.as_ref(), frames, progress)?,
+    };
+    if runs == 0 {
+        return Err(Error::InvalidArgument(format!(
+            "calibration set {}: none of its {frames} frames is usable ({})",
+            job.calibration.display(),
+            match kind {
+                ModelKind::Pose => "no frame has an instance with enough valid depth; frames without ground-truth \
+                                    masks need --segmenter",
+                ModelKind::Segmenter => "no image could be read",
+            }
+        )));
+    }
+    let graph = proto.graph.as_ref().ok_or_else(|| Error::model(&job.model, "the file holds no graph"))?;
+    let target = ProfileTarget { kind, model: relative_to(&job.model, &job.out), onnx_sha256: sha };
+    let info = CalibrationInfo { data: job.calibration.display().to_string(), frames, runs };
+    build_profile(target, graph, &stats, &job.options, info)
+}
+
+type Calibrated = (tract_onnx::pb::ModelProto, std::collections::HashMap<String, super::params::TensorStats>, usize, String);
+
+fn calibrate_pose(
+    job: &QuantizeJob,
+    rec: &dyn Recording,
+    frames: usize,
+    progress: &dyn Fn(usize, usize),
+) -> Result<Calibrated> {
+    let estimator = PoseEstimator::load(&job.model)?;
+    let segmenter = job.segmenter.as_deref().map(Segmenter::load).transpose()?;
+    let proto = estimator.float_proto()?;
+    let graph = proto.graph.as_ref().ok_or_else(|| Error::model(&job.model, "the file holds no graph"))?;
+    let names = observed_tensors(graph);
+    let (observed, mut collector) = StatsCollector::new(&proto, &names)?;
+    let plan = estimator.plan_variant(&observed)?;
+    for i in 0..frames {
+        let frame = rec.read_frame(i)?;
+        let masks: Option<Vec<Vec<bool>>> = match rec.read_annotations(i)?.and_then(|a| a.instance_masks()) {
+            Some(m) => Some(m),
+            None => match &segmenter {
+                Some(seg) => Some(seg.segment(&frame.color)?.into_iter().map(|d| d.mask).collect()),
+                None => None,
+            },
+        };
+        if let Some(masks) = masks {
+            let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+            let prepared = estimator.prepare(&frame, &refs, crate::synth::rng::mix_seed(&[job.seed, i as u64]))?;
+            // One instance per run: the statistics see each object as the runtime does.
+            for input in prepared.inputs.chunks(1) {
+                let tensors = estimator.input_tensors(input)?;
+                let out = plan.run(tensors.clone()).map_err(|e| Error::Inference(format!("{e:#}")))?;
+                collector.observe(&tensors, &out)?;
+            }
+        }
+        progress(i + 1, frames);
+    }
+    let runs = collector.runs();
+    let sha = estimator.card().onnx.sha256.clone();
+    Ok((proto, collector.into_stats(), runs, sha))
+}
+
+fn calibrate_segmenter(
+    job: &QuantizeJob,
+    rec: &dyn Recording,
+    frames: usize,
+    progress: &dyn Fn(usize, usize),
+) -> Result<Calibrated> {
+    let seg = Segmenter::load(&job.model)?;
+    let proto = seg.float_proto()?;
+    let graph = proto.graph.as_ref().ok_or_else(|| Error::model(&job.model, "the file holds no graph"))?;
+    let names = observed_tensors(graph);
+    let (observed, mut collector) = StatsCollector::new(&proto, &names)?;
+    let mut plans: std::collections::HashMap<(u32, u32), std::sync::Arc<TypedRunnableModel>> = Default::default();
+    for i in 0..frames {
+        let frame = rec.read_frame(i)?;
+        let (w, h) = (frame.color.width, frame.color.height);
+        let plan = match plans.get(&(w, h)) {
+            Some(p) => p.clone(),
+            None => {
+                let p = seg.plan_variant(&observed, w as usize, h as usize)?;
+                plans.insert((w, h), p.clone());
+                p
+            }
+        };
+        let inputs: TVec<TValue> = tvec![seg.input_tensor(&frame.color).into_tvalue()];
+        let out = plan.run(inputs.clone()).map_err(|e| Error::Inference(format!("{e:#}")))?;
+        collector.observe(&inputs, &out)?;
+        progress(i + 1, frames);
+    }
+    let runs = collector.runs();
+    let bytes = std::fs::read(seg.onnx_path()).map_err(|e| Error::io(seg.onnx_path(), e))?;
+    Ok((proto, collector.into_stats(), runs, crate::atomic::sha256_hex(&bytes)))
+}
+
+/// `target` relative to the directory of `from_file` when both are relative or both
+/// absolute and they share a prefix; else `target` made absolute.
+fn relative_to(target: &Path, from_file: &Path) -> PathBuf {
+    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let (t, base) = (abs(target), abs(from_file.parent().unwrap_or(Path::new("."))));
+    let (tc, bc): (Vec<_>, Vec<_>) = (t.components().collect(), base.components().collect());
+    let common = tc.iter().zip(&bc).take_while(|(a, b)| a == b).count();
+    if common <= 1 {
+        // Nothing shared but the root: an absolute path reads better than ../../..
+        return t;
+    }
+    let mut rel = PathBuf::new();
+    for _ in common..bc.len() {
+        rel.push("..");
+    }
+    for c in &tc[common..] {
+        rel.push(c);
+    }
+    rel
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn model_paths_are_stored_relative_to_the_profile() {
+        assert_eq!(relative_to(Path::new("models/a.card.json"), Path::new("models/a.int8.json")), PathBuf::from("a.card.json"));
+        assert_eq!(
+            relative_to(Path::new("models/a.card.json"), Path::new("data/q/a.int8.json")),
+            PathBuf::from("../../models/a.card.json")
+        );
+    }
+}
