@@ -35,6 +35,12 @@ pub fn write_atomic_with(path: &Path, fill: impl FnOnce(&mut fs::File) -> std::i
     Ok(())
 }
 
+/// Lower-case hex sha256 of `bytes` (how cards and profiles pin a graph file).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -52,10 +58,4 @@ mod tests {
         assert_eq!(fs::read(&path).unwrap(), b"old");
         assert!(!temporary_path(&path).exists());
     }
-}
-
-/// Lower-case hex sha256 of `bytes` (how cards and profiles pin a graph file).
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::{Digest, Sha256};
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }

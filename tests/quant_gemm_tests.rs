@@ -329,13 +329,23 @@ fn bad_arguments_are_errors() {
         assert!(len(gemm(&a, 3, 3, &w, &stage, Output::F32 { out: &mut out, ld: 4 })));
         assert!(len(gemm(&a, 2, 3, &w, &stage, Output::F32 { out: &mut out[..7], ld: 4 })));
         assert!(len(gemm(&a, 2, 3, &w, &stage, Output::F32Transposed { out: &mut out[..7], ld: 2 })));
-        assert!(len(gemm(&a, 2, 3, &w, &stage, Output::U7 { out: &mut out8[..7], ld: 4, inv_scale: 1.0, zero_point: 0 })));
+        assert!(len(gemm(
+            &a,
+            2,
+            3,
+            &w,
+            &stage,
+            Output::U7 { out: &mut out8[..7], ld: 4, inv_scale: 1.0, zero_point: 0 }
+        )));
         assert!(len(gemm(&a, 2, 4, &w, &stage, Output::F32 { out: &mut out, ld: 4 })));
         assert!(matches!(
             gemm(&a, 2, 2, &w, &stage, Output::F32 { out: &mut out, ld: 4 }),
             Err(GemmError::Stride { what: "a", ld: 2, min: 3 })
         ));
-        assert!(matches!(gemm(&a, 2, 3, &w, &stage, Output::F32 { out: &mut out, ld: 3 }), Err(GemmError::Stride { .. })));
+        assert!(matches!(
+            gemm(&a, 2, 3, &w, &stage, Output::F32 { out: &mut out, ld: 3 }),
+            Err(GemmError::Stride { .. })
+        ));
         assert!(matches!(
             gemm(&a, 2, 3, &w, &stage, Output::F32Transposed { out: &mut out, ld: 1 }),
             Err(GemmError::Stride { .. })
@@ -348,12 +358,18 @@ fn bad_arguments_are_errors() {
             gemm(&a, 2, 3, &w, &stage, Output::U7 { out: &mut out8, ld: 4, inv_scale: 1.0, zero_point: 128 }),
             Err(GemmError::ZeroPoint(128))
         );
-        assert_eq!(gemm(&a, usize::MAX, usize::MAX, &w, &stage, Output::F32 { out: &mut out, ld: 4 }), Err(GemmError::Overflow));
+        assert_eq!(
+            gemm(&a, usize::MAX, usize::MAX, &w, &stage, Output::F32 { out: &mut out, ld: 4 }),
+            Err(GemmError::Overflow)
+        );
         // m = 0 is an empty product.
         assert_eq!(gemm(&[], 0, 3, &w, &stage, Output::F32 { out: &mut [], ld: 4 }), Ok(()));
     }
 
-    assert!(matches!(PackedWeights::new(&[1; 11], 3, 4), Err(GemmError::Len { what: "weights", expected: 12, got: 11 })));
+    assert!(matches!(
+        PackedWeights::new(&[1; 11], 3, 4),
+        Err(GemmError::Len { what: "weights", expected: 12, got: 11 })
+    ));
     assert!(matches!(PackedWeights::new(&[], 0, 4), Err(GemmError::EmptyWeights { .. })));
     assert!(matches!(PackedWeights::new(&[1; 4], usize::MAX, 2), Err(GemmError::Overflow)));
     for kernel in Kernel::ALL {

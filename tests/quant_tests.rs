@@ -270,7 +270,15 @@ fn quantize_is_deterministic_and_validate_reports_and_gates() {
     let (p1, p2) = (dir.path().join("a.int8.json"), dir.path().join("b.int8.json"));
     for p in [&p1, &p2] {
         let o = tricons(&[
-            "quantize", "--model", &model, "--calibration", &calib, "--frames", "2", "--out", p.to_str().unwrap(),
+            "quantize",
+            "--model",
+            &model,
+            "--calibration",
+            &calib,
+            "--frames",
+            "2",
+            "--out",
+            p.to_str().unwrap(),
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
@@ -284,8 +292,16 @@ fn quantize_is_deterministic_and_validate_reports_and_gates() {
     let json = dir.path().join("v.json");
     let validate = |max_drop: &str| {
         tricons(&[
-            "validate", "--float", &model, "--int8", p1.to_str().unwrap(), "--data", rec.to_str().unwrap(),
-            "--json", json.to_str().unwrap(), &format!("--max-drop={max_drop}"),
+            "validate",
+            "--float",
+            &model,
+            "--int8",
+            p1.to_str().unwrap(),
+            "--data",
+            rec.to_str().unwrap(),
+            "--json",
+            json.to_str().unwrap(),
+            &format!("--max-drop={max_drop}"),
         ])
     };
     let o = validate("100");
@@ -316,7 +332,17 @@ fn quantize_refuses_unusable_calibration_and_models_without_int8_nodes() {
     // Every node forced float.
     let calib = repo("calibration/synthnocs-calib");
     let o = tricons(&[
-        "quantize", "--model", &model, "--calibration", &calib, "--frames", "1", "--keep-float", "/", "--out", out_s,
+        "quantize",
+        "--model",
+        &model,
+        "--calibration",
+        &calib,
+        "--frames",
+        "1",
+        "--keep-float",
+        "/",
+        "--out",
+        out_s,
     ]);
     assert_clean_failure(&o, "no node of the model can run in int8");
     assert!(!out.exists(), "a failed quantize must not leave a profile");

@@ -78,7 +78,11 @@ pub fn coco_ap(scores_and_tp: &[(f64, bool)], num_gt: usize) -> Option<f64> {
     let mut recall = Vec::with_capacity(sorted.len());
     let mut precision = Vec::with_capacity(sorted.len());
     for &(_, hit) in &sorted {
-        if hit { tp += 1 } else { fp += 1 }
+        if hit {
+            tp += 1
+        } else {
+            fp += 1
+        }
         recall.push(tp as f64 / num_gt as f64);
         precision.push(tp as f64 / (tp + fp) as f64);
     }
@@ -97,7 +101,11 @@ pub fn coco_ap(scores_and_tp: &[(f64, bool)], num_gt: usize) -> Option<f64> {
 
 /// Mean AP over the classes with ground truth at one IoU threshold; `frames` holds
 /// `(detections, ground truth)` per frame. `None` when there is no ground truth.
-pub fn average_precision_2d(frames: &[(Vec<Object2d>, Vec<Object2d>)], overlap: Overlap, threshold: f64) -> Option<f64> {
+pub fn average_precision_2d(
+    frames: &[(Vec<Object2d>, Vec<Object2d>)],
+    overlap: Overlap,
+    threshold: f64,
+) -> Option<f64> {
     let mut aps = Vec::new();
     for class in Category::ALL {
         let mut hits: Vec<(f64, bool)> = Vec::new();

@@ -10,9 +10,9 @@ use crate::error::{Error, Result};
 use crate::frame::RgbdFrame;
 use crate::geometry::{Mat3, Pose, Vec3};
 use crate::pose::card::{ModelCard, card_path_for};
+use crate::pose::preprocess::{PoseInput, PreprocessConfig, build_input, prepare_instance, sample_indices};
 use crate::quant::rewrite::ApplyReport;
 use crate::quant::{ModelKind, QuantProfile};
-use crate::pose::preprocess::{PoseInput, PreprocessConfig, build_input, prepare_instance, sample_indices};
 use crate::synth::rng::Rng;
 
 /// The pose of one instance as the network estimates it.
@@ -123,7 +123,12 @@ impl PoseEstimator {
                 if !p.onnx_sha256.eq_ignore_ascii_case(&card.onnx.sha256) {
                     return Err(Error::model(
                         path,
-                        format!("onnx_sha256 {} is not the graph of {} ({})", p.onnx_sha256, card_path.display(), card.onnx.sha256),
+                        format!(
+                            "onnx_sha256 {} is not the graph of {} ({})",
+                            p.onnx_sha256,
+                            card_path.display(),
+                            card.onnx.sha256
+                        ),
                     ));
                 }
                 Some(crate::quant::rewrite::apply(&mut proto, p).map_err(|m| Error::model(path, m))?)
@@ -142,7 +147,7 @@ impl PoseEstimator {
         let bytes = self.card.read_verified_graph(&self.card_path)?;
         crate::ops::onnx_with_custom_ops()
             .proto_model_for_read(&mut bytes.as_slice())
-            .map_err(|e| Error::model(&self.card.onnx_path(&self.card_path), format!("{e:#}")))
+            .map_err(|e| Error::model(self.card.onnx_path(&self.card_path), format!("{e:#}")))
     }
 
     /// A runnable plan of another version of this graph (e.g. with calibration outputs).

@@ -11,9 +11,7 @@ use tract_onnx::pb::{GraphProto, ModelProto, ValueInfoProto};
 use tract_onnx::prelude::*;
 
 use super::params::{QParams, RangeMethod, TensorStats, quantize_weights_per_channel, sqnr_db};
-use super::profile::{
-    CalibrationInfo, FloatNode, ModelKind, PROFILE_FORMAT, PROFILE_VERSION, QuantNode, QuantProfile,
-};
+use super::profile::{CalibrationInfo, FloatNode, ModelKind, PROFILE_FORMAT, PROFILE_VERSION, QuantNode, QuantProfile};
 use super::rewrite::{Candidate, Constants, candidates, weight_matrix};
 use crate::error::{Error, Result};
 
@@ -70,8 +68,10 @@ impl StatsCollector {
             if t.datum_type() != f32::datum_type() {
                 continue;
             }
-            let values =
-                t.try_as_plain_ram().and_then(|v| v.as_slice::<f32>()).map_err(|e| Error::Inference(format!("{e:#}")))?;
+            let values = t
+                .try_as_plain_ram()
+                .and_then(|v| v.as_slice::<f32>())
+                .map_err(|e| Error::Inference(format!("{e:#}")))?;
             st.observe(values, t.rank());
         }
         self.runs += 1;
@@ -111,6 +111,9 @@ pub struct QuantizeOptions {
     pub keep_float: Vec<String>,
     /// Let consecutive int8 linear layers pass u7 activations (no float round trip).
     pub chain: bool,
+    /// Keep this many nodes float: those whose quantization alone changes the model's
+    /// outputs most on calibration samples (pose models; one model build per int8 node).
+    pub sensitivity: usize,
 }
 
 impl Default for QuantizeOptions {
@@ -120,6 +123,7 @@ impl Default for QuantizeOptions {
             min_sqnr_db: 20.0,
             keep_float: Vec::new(),
             chain: true,
+            sensitivity: 0,
         }
     }
 }
@@ -272,4 +276,64 @@ fn chain_u7(graph: &GraphProto, all: &[Candidate], nodes: &mut [QuantNode]) {
             nodes[u].input_u7 = true;
         }
     }
+}
+
+/// `profile` with only its node `index` in int8 (no u7 hand-over), for sensitivity runs.
+pub fn single_node_profile(profile: &QuantProfile, index: usize) -> QuantProfile {
+    let mut node = profile.nodes[index].clone();
+    node.input_u7 = false;
+    node.output_u7 = None;
+    QuantProfile { nodes: vec![node], float: Vec::new(), ..profile.clone() }
+}
+
+/// Move the `count` nodes with the largest `errors` (one per profile node: the output
+/// error when it alone runs in int8) to float, then re-link the u7 hand-overs.
+pub fn keep_most_sensitive_float(
+    profile: &mut QuantProfile,
+    graph: &GraphProto,
+    errors: &[f64],
+    count: usize,
+    chain: bool,
+) {
+    let mut order: Vec<usize> = (0..profile.nodes.len().min(errors.len())).collect();
+    order.sort_by(|&a, &b| errors[b].total_cmp(&errors[a]).then(a.cmp(&b)));
+    let drop: HashSet<usize> = order.iter().take(count.min(order.len().saturating_sub(1))).copied().collect();
+    let mut kept = Vec::new();
+    for (i, mut n) in std::mem::take(&mut profile.nodes).into_iter().enumerate() {
+        if drop.contains(&i) {
+            let rank = order.iter().position(|&j| j == i).unwrap_or(0) + 1;
+            profile.float.push(FloatNode {
+                node: n.node,
+                op: n.op,
+                reason: format!("sensitivity: alone in int8 it changes the outputs by {:.2e} (rank {rank})", errors[i]),
+            });
+        } else {
+            n.input_u7 = false;
+            n.output_u7 = None;
+            kept.push(n);
+        }
+    }
+    if chain {
+        chain_u7(graph, &candidates(graph), &mut kept);
+    }
+    profile.nodes = kept;
+}
+
+/// Relative squared error of `got` against `want`, averaged over the f32 outputs whose
+/// shapes agree.
+pub fn output_error(want: &[TValue], got: &[TValue]) -> f64 {
+    let mut total = 0f64;
+    let mut n = 0;
+    for (a, b) in want.iter().zip(got) {
+        let (Ok(a), Ok(b)) = (a.try_as_plain_ram(), b.try_as_plain_ram()) else { continue };
+        let (Ok(a), Ok(b)) = (a.as_slice::<f32>(), b.as_slice::<f32>()) else { continue };
+        if a.len() != b.len() {
+            continue;
+        }
+        let num: f64 = a.iter().zip(b).map(|(x, y)| (*x as f64 - *y as f64).powi(2)).sum();
+        let den: f64 = a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().max(1e-30);
+        total += num / den;
+        n += 1;
+    }
+    if n == 0 { 0.0 } else { total / n as f64 }
 }

@@ -7,7 +7,15 @@ use std::path::{Path, PathBuf};
 
 use tract_onnx::prelude::*;
 
-use super::calibrate::{ProfileTarget, QuantizeOptions, StatsCollector, build_profile, observed_tensors};
+use std::collections::HashMap;
+
+use tract_onnx::pb::ModelProto;
+
+use super::calibrate::{
+    ProfileTarget, QuantizeOptions, StatsCollector, build_profile, keep_most_sensitive_float, observed_tensors,
+    output_error, single_node_profile,
+};
+use super::params::TensorStats;
 use super::profile::{CalibrationInfo, ModelKind, QuantProfile};
 use crate::error::{Error, Result};
 use crate::pose::PoseEstimator;
@@ -45,13 +53,10 @@ pub fn quantize(job: &QuantizeJob, progress: &dyn Fn(usize, usize)) -> Result<Qu
     let rec = open_recording(&job.calibration)?;
     let frames = job.max_frames.map_or(rec.len(), |m| m.min(rec.len()));
     if frames == 0 {
-        return Err(Error::InvalidArgument(format!(
-            "calibration set {}: no frames",
-            job.calibration.display()
-        )));
+        return Err(Error::InvalidArgument(format!("calibration set {}: no frames", job.calibration.display())));
     }
     let kind = model_kind(&job.model);
-    let (proto, stats, runs, sha) = match kind {
+    let (proto, stats, runs, sha, samples) = match kind {
         ModelKind::Pose => calibrate_pose(job, rec.as_ref(), frames, progress)?,
         ModelKind::Segmenter => calibrate_segmenter(job, rec.as_ref(), frames, progress)?,
     };
@@ -60,7 +65,8 @@ pub fn quantize(job: &QuantizeJob, progress: &dyn Fn(usize, usize)) -> Result<Qu
             "calibration set {}: none of its {frames} frames is usable ({})",
             job.calibration.display(),
             match kind {
-                ModelKind::Pose => "no frame has an instance with enough valid depth; frames without ground-truth \
+                ModelKind::Pose =>
+                    "no frame has an instance with enough valid depth; frames without ground-truth \
                                     masks need --segmenter",
                 ModelKind::Segmenter => "no image could be read",
             }
@@ -69,10 +75,53 @@ pub fn quantize(job: &QuantizeJob, progress: &dyn Fn(usize, usize)) -> Result<Qu
     let graph = proto.graph.as_ref().ok_or_else(|| Error::model(&job.model, "the file holds no graph"))?;
     let target = ProfileTarget { kind, model: relative_to(&job.model, &job.out), onnx_sha256: sha };
     let info = CalibrationInfo { data: job.calibration.display().to_string(), frames, runs };
-    build_profile(target, graph, &stats, &job.options, info)
+    let mut profile = build_profile(target, graph, &stats, &job.options, info)?;
+    if job.options.sensitivity > 0 {
+        if kind != ModelKind::Pose {
+            return Err(Error::InvalidArgument("--sensitivity works on pose models only".into()));
+        }
+        let errors = pose_sensitivity(job, &proto, &profile, &samples, progress)?;
+        let chain = job.options.chain;
+        keep_most_sensitive_float(&mut profile, graph, &errors, job.options.sensitivity, chain);
+    }
+    Ok(profile)
 }
 
-type Calibrated = (tract_onnx::pb::ModelProto, std::collections::HashMap<String, super::params::TensorStats>, usize, String);
+/// Calibration instances kept for the sensitivity runs.
+const SENSITIVITY_SAMPLES: usize = 8;
+
+/// Per profile node, the output error when it alone runs in int8.
+fn pose_sensitivity(
+    job: &QuantizeJob,
+    proto: &ModelProto,
+    profile: &QuantProfile,
+    samples: &[TVec<TValue>],
+    progress: &dyn Fn(usize, usize),
+) -> Result<Vec<f64>> {
+    let estimator = PoseEstimator::load(&job.model)?;
+    let run = |plan: &std::sync::Arc<TypedRunnableModel>, x: &TVec<TValue>| {
+        plan.run(x.clone()).map_err(|e| Error::Inference(format!("{e:#}")))
+    };
+    let float = estimator.plan_variant(proto)?;
+    let want: Vec<TVec<TValue>> = samples.iter().map(|x| run(&float, x)).collect::<Result<_>>()?;
+    let mut errors = Vec::with_capacity(profile.nodes.len());
+    for i in 0..profile.nodes.len() {
+        let mut one = proto.clone();
+        crate::quant::rewrite::apply(&mut one, &single_node_profile(profile, i))
+            .map_err(|m| Error::model(&job.model, m))?;
+        let plan = estimator.plan_variant(&one)?;
+        let mut e = 0.0;
+        for (x, w) in samples.iter().zip(&want) {
+            e += output_error(w, &run(&plan, x)?);
+        }
+        errors.push(e / samples.len().max(1) as f64);
+        progress(i + 1, profile.nodes.len());
+    }
+    Ok(errors)
+}
+
+/// Graph, statistics by tensor, runs, graph sha256, the first runs' inputs.
+type Calibrated = (ModelProto, HashMap<String, TensorStats>, usize, String, Vec<TVec<TValue>>);
 
 fn calibrate_pose(
     job: &QuantizeJob,
@@ -87,6 +136,7 @@ fn calibrate_pose(
     let names = observed_tensors(graph);
     let (observed, mut collector) = StatsCollector::new(&proto, &names)?;
     let plan = estimator.plan_variant(&observed)?;
+    let mut samples = Vec::new();
     for i in 0..frames {
         let frame = rec.read_frame(i)?;
         let masks: Option<Vec<Vec<bool>>> = match rec.read_annotations(i)?.and_then(|a| a.instance_masks()) {
@@ -102,6 +152,9 @@ fn calibrate_pose(
             // One instance per run: the statistics see each object as the runtime does.
             for input in prepared.inputs.chunks(1) {
                 let tensors = estimator.input_tensors(input)?;
+                if samples.len() < SENSITIVITY_SAMPLES {
+                    samples.push(tensors.clone());
+                }
                 let out = plan.run(tensors.clone()).map_err(|e| Error::Inference(format!("{e:#}")))?;
                 collector.observe(&tensors, &out)?;
             }
@@ -110,7 +163,7 @@ fn calibrate_pose(
     }
     let runs = collector.runs();
     let sha = estimator.card().onnx.sha256.clone();
-    Ok((proto, collector.into_stats(), runs, sha))
+    Ok((proto, collector.into_stats(), runs, sha, samples))
 }
 
 fn calibrate_segmenter(
@@ -143,7 +196,7 @@ fn calibrate_segmenter(
     }
     let runs = collector.runs();
     let bytes = std::fs::read(seg.onnx_path()).map_err(|e| Error::io(seg.onnx_path(), e))?;
-    Ok((proto, collector.into_stats(), runs, crate::atomic::sha256_hex(&bytes)))
+    Ok((proto, collector.into_stats(), runs, crate::atomic::sha256_hex(&bytes), Vec::new()))
 }
 
 /// `target` relative to the directory of `from_file` when both are relative or both
@@ -173,7 +226,10 @@ mod tests {
 
     #[test]
     fn model_paths_are_stored_relative_to_the_profile() {
-        assert_eq!(relative_to(Path::new("models/a.card.json"), Path::new("models/a.int8.json")), PathBuf::from("a.card.json"));
+        assert_eq!(
+            relative_to(Path::new("models/a.card.json"), Path::new("models/a.int8.json")),
+            PathBuf::from("a.card.json")
+        );
         assert_eq!(
             relative_to(Path::new("models/a.card.json"), Path::new("data/q/a.int8.json")),
             PathBuf::from("../../models/a.card.json")

@@ -65,8 +65,7 @@ pub struct Constants<'g> {
 impl<'g> Constants<'g> {
     /// Index the constants of `graph`.
     pub fn new(graph: &'g GraphProto) -> Self {
-        let mut tensors: HashMap<&str, &TensorProto> =
-            graph.initializer.iter().map(|t| (t.name.as_str(), t)).collect();
+        let mut tensors: HashMap<&str, &TensorProto> = graph.initializer.iter().map(|t| (t.name.as_str(), t)).collect();
         for n in graph.node.iter().filter(|n| n.op_type == "Constant") {
             if let (Some(out), Some(t)) = (n.output.first(), attr(n, "value").and_then(|a| a.t.as_ref())) {
                 tensors.insert(out.as_str(), t);
@@ -213,10 +212,8 @@ pub fn weight_matrix(node: &NodeProto, consts: &Constants) -> Result<Option<Weig
             if attr_i(node, "group", 1) != 1 {
                 return Err("grouped or depthwise Conv (no int8 kernel)".into());
             }
-            if let Some(a) = attr(node, "auto_pad") {
-                if !a.s.is_empty() && a.s != b"NOTSET" {
-                    return Err("Conv with auto_pad".into());
-                }
+            if attr(node, "auto_pad").is_some_and(|a| !a.s.is_empty() && a.s != b"NOTSET") {
+                return Err("Conv with auto_pad".into());
             }
             let (n, k, kh, kw) = (dims[0], dims[1] * dims[2] * dims[3], dims[2], dims[3]);
             let mut m = vec![0f32; k * n];
@@ -282,7 +279,12 @@ fn a_floats(name: &str, floats: Vec<f32>) -> AttributeProto {
 }
 
 fn a_ints(name: &str, ints: Vec<i64>) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: attribute_proto::AttributeType::Ints as i32, ints, ..Default::default() }
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_proto::AttributeType::Ints as i32,
+        ints,
+        ..Default::default()
+    }
 }
 
 fn a_tensor(name: &str, dims: &[usize], values: &[f32]) -> AttributeProto {

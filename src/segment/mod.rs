@@ -22,10 +22,10 @@ pub use rewrite::{RewriteReport, rewrite};
 use tract_onnx::pb::ModelProto;
 
 use crate::category::Category;
-use crate::quant::rewrite::ApplyReport;
-use crate::quant::{ModelKind, QuantProfile};
 use crate::error::{Error, Result};
 use crate::frame::ColorImage;
+use crate::quant::rewrite::ApplyReport;
+use crate::quant::{ModelKind, QuantProfile};
 
 /// One detected instance.
 #[derive(Clone, Debug, PartialEq)]
@@ -121,10 +121,8 @@ impl Segmenter {
         let bytes = std::fs::read(onnx_path).map_err(|e| Error::io(onnx_path, e))?;
         let err = |m: String| Error::model(onnx_path, m);
         let hex = crate::atomic::sha256_hex(&bytes);
-        if let Some(want) = &card.sha256 {
-            if !hex.eq_ignore_ascii_case(want) {
-                return Err(err(format!("sha256 {hex} does not match its card ({want}): graph and card differ")));
-            }
+        if let Some(want) = card.sha256.as_ref().filter(|w| !hex.eq_ignore_ascii_case(w)) {
+            return Err(err(format!("sha256 {hex} does not match its card ({want}): graph and card differ")));
         }
         let mut proto = crate::ops::onnx_with_custom_ops()
             .proto_model_for_read(&mut bytes.as_slice())

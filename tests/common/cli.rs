@@ -39,7 +39,6 @@ pub fn assert_clean_failure(o: &Output, needle: &str) {
     assert!(err.contains(needle), "stderr does not mention {needle:?}: {err}");
 }
 
-
 /// A copy of the first `frames` frames of the demo recording in `dir/rec`, with or without
 /// their annotations (keeps the slow qemu runs of the full pipeline short).
 pub fn demo_subset(dir: &Path, frames: usize, annotations: bool) -> std::path::PathBuf {
@@ -73,4 +72,3 @@ pub fn demo_subset(dir: &Path, frames: usize, annotations: bool) -> std::path::P
     fs::write(rec.join("manifest.json"), serde_json::to_string(&manifest).unwrap()).unwrap();
     rec
 }
-

@@ -8,7 +8,12 @@ points drawn with the runtime's sampler, :mod:`tricons_rng`):
   the ``ai.tricons`` nodes, FPS unrolled), CPU execution provider, all graph
   optimisations;
 * tract: ``tricons bench --json`` (run it first), whose report this script reads
-  with ``--tract-json`` to print one markdown table.
+  with ``--tract-json`` to print one markdown table (with ``tricons bench --int8``,
+  tract's int8 row too);
+* ``--ort-int8 OUT``: onnxruntime's own static int8 quantization of the same
+  standard-op graph (QDQ, per-channel int8 weights, uint8 activations, MinMax
+  calibration on the ``--calibration`` recording's instances, the MatMul / Gemm /
+  Conv nodes as in tricons), written to OUT and timed like the float graph.
 
 Per object: the first usable instance alone (batch 1). Per frame: each frame's
 usable instances in one batch (graph only; preprocessing is reported by tract).
@@ -82,6 +87,25 @@ def bench_runtime(run: Callable[[Dict[str, np.ndarray]], object], batches, runs:
             "instances_per_frame": n_inst}
 
 
+def quantize_ort(model_in: str, model_out: str, calibration: List[Dict[str, np.ndarray]]) -> None:
+    """onnxruntime static quantization (QDQ) of the standard-op graph, one instance per calibration run."""
+    from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType,
+                                          quantize_static)
+
+    class Reader(CalibrationDataReader):
+        def __init__(self):
+            self.items = iter([{k: v[i:i + 1] for k, v in b.items()} for b in calibration
+                               for i in range(len(b["pts"]))])
+
+        def get_next(self):
+            return next(self.items, None)
+
+    Path(model_out).parent.mkdir(parents=True, exist_ok=True)
+    quantize_static(model_in, model_out, Reader(), quant_format=QuantFormat.QDQ, per_channel=True,
+                    activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                    op_types_to_quantize=["MatMul", "Gemm", "Conv"], calibrate_method=CalibrationMethod.MinMax)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point (see the module docstring)."""
     p = argparse.ArgumentParser(prog="python -m tricons_pose.bench", description=__doc__.split("\n")[0])
@@ -97,6 +121,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1, help="threads of every runtime (tract runs on 1)")
     p.add_argument("--tract-json", help="report of `tricons bench --json` to put in the table")
     p.add_argument("--json", help="write this script's measurements here")
+    p.add_argument("--ort-int8", help="quantize --standard-onnx with onnxruntime to this file and time it too")
+    p.add_argument("--calibration", default=str(Path(__file__).resolve().parents[2] / "calibration/synthnocs-calib"),
+                   help="calibration recording of --ort-int8")
     args = p.parse_args(argv)
 
     torch.set_num_threads(args.threads)
@@ -130,6 +157,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         results["onnxruntime"] = bench_runtime(lambda b: sess.run(list(OUTPUT_NAMES), b), batches, args.runs,
                                                args.warmup)
         results["onnxruntime_version"] = ort.__version__
+        if args.ort_int8:
+            quantize_ort(args.standard_onnx, args.ort_int8,
+                         frame_batches(args.calibration, cfg.n_points, cfg.crop_size, args.seed))
+            qsess = ort.InferenceSession(args.ort_int8, so, providers=["CPUExecutionProvider"])
+            got = qsess.run(list(OUTPUT_NAMES), batches[0])
+            results["onnxruntime_int8_max_abs_diff_t_m"] = float(np.abs(got[1] - ref["t"].numpy()).max())
+            results["onnxruntime_int8"] = bench_runtime(lambda b: qsess.run(list(OUTPUT_NAMES), b), batches,
+                                                        args.runs, args.warmup)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
@@ -145,9 +180,14 @@ def table(results: dict, tract: dict | None) -> str:
     if tract:
         rows.append(f"| tract + tricons ops (1 thread) | {fmt(tract['per_object'])} | "
                     f"{tract['per_frame_graph']['median_ms']:.1f} | {tract['per_frame']['median_ms']:.1f} |")
+        if tract.get("int8"):
+            q = tract["int8"]
+            rows.append(f"| tract + tricons int8 (1 thread) | {fmt(q['per_object'])} | "
+                        f"{q['per_frame_graph']['median_ms']:.1f} | - |")
     names = {"onnxruntime": f"onnxruntime {results.get('onnxruntime_version', '')}, standard-op export",
+             "onnxruntime_int8": f"onnxruntime {results.get('onnxruntime_version', '')} int8 (QDQ), same graph",
              "pytorch": f"PyTorch {results['torch']} eager"}
-    for key in ("onnxruntime", "pytorch"):
+    for key in ("onnxruntime", "onnxruntime_int8", "pytorch"):
         if key in results:
             r = results[key]
             rows.append(f"| {names[key]} ({results['threads']} thread{'s' if results['threads'] > 1 else ''}) | "

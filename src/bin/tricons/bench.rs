@@ -20,7 +20,8 @@ use crate::replay::{DEFAULT_MODEL, DEFAULT_RECORDING};
 #[command(after_help = "Examples:\n  \
     tricons bench                                        # shipped model, demo recording\n  \
     tricons bench --model data/models/tricons-pose-paper.card.json --runs 5 --json data/bench/paper.json\n  \
-    tricons bench --segmenter models/maskrcnn-light.card.json --runs 10\n\n\
+    tricons bench --segmenter models/maskrcnn-light.card.json --runs 10\n  \
+    tricons bench --int8 models/tricons-pose.int8.json    # float and int8 side by side\n\n\
     Per object: the graph on one instance (batch 1). Per frame: preprocessing plus one batched run\n\
     over all instances of a recording frame (ground-truth masks). Medians over --runs after --warmup;\n\
     tract runs on one thread.")]
@@ -51,6 +52,10 @@ pub struct Args {
     /// Also write the report as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// int8 profile of the same model (`tricons quantize` output): measured in the same run
+    /// on the same inputs, after the float model, and reported side by side.
+    #[arg(long)]
+    int8: Option<PathBuf>,
 }
 
 /// Latency statistics of one measurement, milliseconds.
@@ -102,6 +107,23 @@ struct Report {
     per_frame_graph_one_by_one: Stats,
     per_frame_ops: Vec<OpShare>,
     per_frame_custom_share: f64,
+    /// The int8 profile's measurements on the same inputs (`--int8`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    int8: Option<Int8Report>,
+}
+
+/// The int8 model in the same run.
+#[derive(Serialize)]
+struct Int8Report {
+    profile: String,
+    int8_nodes: usize,
+    load_s: f64,
+    per_object: Stats,
+    per_frame_graph: Stats,
+    /// Float median over int8 median, per object (batch 1).
+    speedup_per_object: f64,
+    /// The same per frame (graph, batched).
+    speedup_per_frame_graph: f64,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -109,7 +131,8 @@ pub fn run(args: Args) -> Result<()> {
         bail!("--runs must be at least 1");
     }
     if let Some(seg) = &args.segmenter {
-        return crate::bench_segment::run(seg, &args.recording, args.runs, args.warmup, args.json.as_deref());
+        let int8 = args.int8.as_deref();
+        return crate::bench_segment::run(seg, int8, &args.recording, args.runs, args.warmup, args.json.as_deref());
     }
     let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();
@@ -193,6 +216,26 @@ pub fn run(args: Args) -> Result<()> {
     }
     bar.finish_and_clear();
 
+    let int8 = match &args.int8 {
+        None => None,
+        Some(path) => {
+            let t = Instant::now();
+            let q = PoseEstimator::load(path).with_context(|| "loading the int8 profile (--int8)")?;
+            let load_s = t.elapsed().as_secs_f64();
+            let (obj, graph) = time_graph(&q, &one, &frames, &args)?;
+            let (obj, graph) = (Stats::of(&obj), Stats::of(&graph));
+            Some(Int8Report {
+                profile: path.display().to_string(),
+                int8_nodes: q.quantized().map_or(0, |r| r.quantized),
+                load_s,
+                speedup_per_object: Stats::of(&object_times).median_ms / obj.median_ms,
+                speedup_per_frame_graph: Stats::of(&graph_times).median_ms / graph.median_ms,
+                per_object: obj,
+                per_frame_graph: graph,
+            })
+        }
+    };
+
     let card = estimator.card();
     let report = Report {
         runtime: "tract",
@@ -214,6 +257,7 @@ pub fn run(args: Args) -> Result<()> {
         per_frame_graph_one_by_one: Stats::of(&one_by_one),
         per_frame_ops,
         per_frame_custom_share,
+        int8,
     };
     print_report(&report);
     if args.profile_graph {
@@ -227,6 +271,39 @@ pub fn run(args: Args) -> Result<()> {
         log::info!("report written to {}", path.display());
     }
     Ok(())
+}
+
+/// Per-object (batch 1) and per-frame graph (batched) times of `estimator` on the inputs
+/// the float model was measured on.
+fn time_graph(
+    estimator: &PoseEstimator,
+    one: &[tricons::pose::preprocess::PoseInput],
+    frames: &[(usize, tricons::frame::RgbdFrame, Vec<Vec<bool>>)],
+    args: &Args,
+) -> Result<(Vec<Duration>, Vec<Duration>)> {
+    for _ in 0..args.warmup {
+        estimator.run_inputs(one)?;
+    }
+    let mut object = Vec::with_capacity(args.runs);
+    for _ in 0..args.runs {
+        let t = Instant::now();
+        estimator.run_inputs(one)?;
+        object.push(t.elapsed());
+    }
+    let mut graph = Vec::new();
+    for (i, frame, masks) in frames {
+        let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+        let prepared = estimator.prepare(frame, &refs, mix_seed(&[args.seed, *i as u64]))?;
+        for _ in 0..args.warmup {
+            estimator.run_inputs(&prepared.inputs)?;
+        }
+        for _ in 0..args.runs {
+            let t = Instant::now();
+            estimator.run_inputs(&prepared.inputs)?;
+            graph.push(t.elapsed());
+        }
+    }
+    Ok((object, graph))
 }
 
 /// Time per tract operator over one run at batch 1 and one over the first frame's batch.
@@ -308,6 +385,21 @@ fn print_report(r: &Report) {
             100.0 * o.share_of_graph,
             f.ms_per_run,
             100.0 * f.share_of_graph
+        );
+    }
+    if let Some(q) = &r.int8 {
+        println!(
+            "int8 ({}, {} int8 nodes, loaded in {:.2} s): per object median {:.2} ms (p10 {:.2}, p90 {:.2}), \
+             {:.2}x float; per frame graph {:.2} ms, {:.2}x float",
+            q.profile,
+            q.int8_nodes,
+            q.load_s,
+            q.per_object.median_ms,
+            q.per_object.p10_ms,
+            q.per_object.p90_ms,
+            q.speedup_per_object,
+            q.per_frame_graph.median_ms,
+            q.speedup_per_frame_graph
         );
     }
 }

@@ -36,14 +36,35 @@ struct SegReport {
     nms_kept: usize,
     nms_grid: Stats,
     nms_pairwise: Stats,
+    /// The int8 profile on the same frame (`--int8`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    int8: Option<SegInt8>,
 }
 
-/// Benchmark `model` on the first frame of `recording`.
-pub fn run(model: &Path, recording: &Path, runs: usize, warmup: usize, json: Option<&Path>) -> Result<()> {
-    let rec = open_recording(recording).with_context(|| "opening the recording (--recording)")?;
-    let frame = rec.read_frame(0)?;
+/// The int8 segmenter in the same run.
+#[derive(Serialize)]
+struct SegInt8 {
+    profile: String,
+    int8_nodes: usize,
+    load_s: f64,
+    plan_s: f64,
+    detections: usize,
+    per_frame: Stats,
+    /// Float median over int8 median.
+    speedup: f64,
+}
+
+/// Load (all detections kept), plan for `frame`, warm up, time `runs` frames:
+/// (segmenter, load s, plan s, detections, times).
+fn timed_segmenter(
+    model: &Path,
+    frame: &tricons::frame::RgbdFrame,
+    runs: usize,
+    warmup: usize,
+    profiled: bool,
+) -> Result<(Segmenter, f64, f64, usize, Vec<Duration>)> {
     let t = Instant::now();
-    let mut seg = Segmenter::load(model).with_context(|| "loading the segmenter (--segmenter)")?;
+    let mut seg = Segmenter::load(model).with_context(|| format!("loading the segmenter {}", model.display()))?;
     let load_s = t.elapsed().as_secs_f64();
     seg.set_score_threshold(0.0);
     let t = Instant::now();
@@ -53,7 +74,7 @@ pub fn run(model: &Path, recording: &Path, runs: usize, warmup: usize, json: Opt
     for _ in 0..warmup {
         detections = seg.segment(&frame.color)?.len();
     }
-    profile::enable(true);
+    profile::enable(profiled);
     profile::reset();
     let mut times = Vec::with_capacity(runs);
     for _ in 0..runs {
@@ -61,6 +82,21 @@ pub fn run(model: &Path, recording: &Path, runs: usize, warmup: usize, json: Opt
         detections = seg.segment(&frame.color)?.len();
         times.push(t.elapsed());
     }
+    Ok((seg, load_s, plan_s, detections, times))
+}
+
+/// Benchmark `model` on the first frame of `recording`.
+pub fn run(
+    model: &Path,
+    int8: Option<&Path>,
+    recording: &Path,
+    runs: usize,
+    warmup: usize,
+    json: Option<&Path>,
+) -> Result<()> {
+    let rec = open_recording(recording).with_context(|| "opening the recording (--recording)")?;
+    let frame = rec.read_frame(0)?;
+    let (seg, load_s, plan_s, detections, times) = timed_segmenter(model, &frame, runs, warmup, true)?;
     let (ops, _) = op_shares(runs, &times);
     profile::enable(false);
 
@@ -79,6 +115,22 @@ pub fn run(model: &Path, recording: &Path, runs: usize, warmup: usize, json: Opt
     let (grid, nms_kept) = time(&|| nms(&boxes, &scores, &p), runs.max(3));
     let (pairwise, kept_ref) = time(&|| nms_reference(&boxes, &scores, &p), 3);
     anyhow::ensure!(kept_ref == nms_kept, "grid NMS kept {nms_kept}, pairwise {kept_ref}");
+    let int8 = match int8 {
+        None => None,
+        Some(path) => {
+            let (q, load_s, plan_s, detections, q_times) = timed_segmenter(path, &frame, runs, warmup, false)?;
+            let per_frame = Stats::of(&q_times);
+            Some(SegInt8 {
+                profile: path.display().to_string(),
+                int8_nodes: q.quantized().map_or(0, |r| r.quantized),
+                load_s,
+                plan_s,
+                detections,
+                speedup: Stats::of(&times).median_ms / per_frame.median_ms,
+                per_frame,
+            })
+        }
+    };
     let report = SegReport {
         runtime: "tract",
         model: seg.onnx_path().display().to_string(),
@@ -95,6 +147,7 @@ pub fn run(model: &Path, recording: &Path, runs: usize, warmup: usize, json: Opt
         nms_kept,
         nms_grid: Stats::of(&grid),
         nms_pairwise: Stats::of(&pairwise),
+        int8,
     };
     println!(
         "segmenter {} on {}x{} ({} detections at score >= 0): median {:.1} ms/frame (p10 {:.1}, p90 {:.1}), \
@@ -122,6 +175,18 @@ pub fn run(model: &Path, recording: &Path, runs: usize, warmup: usize, json: Opt
         "NMS on {NMS_CANDIDATES} candidates ({nms_kept} kept): grid {:.1} ms, pairwise {:.1} ms",
         report.nms_grid.median_ms, report.nms_pairwise.median_ms
     );
+    if let Some(q) = &report.int8 {
+        println!(
+            "int8 ({}, {} int8 nodes, {} detections): median {:.1} ms/frame (p10 {:.1}, p90 {:.1}), {:.2}x float",
+            q.profile,
+            q.int8_nodes,
+            q.detections,
+            q.per_frame.median_ms,
+            q.per_frame.p10_ms,
+            q.per_frame.p90_ms,
+            q.speedup
+        );
+    }
     if let Some(path) = json {
         write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
     }

@@ -50,6 +50,10 @@ pub struct Args {
     /// Keep nodes whose name contains this in float (repeatable).
     #[arg(long)]
     keep_float: Vec<String>,
+    /// Keep this many nodes float: those whose quantization alone changes the outputs most on
+    /// calibration samples (pose models; one model build per int8 node).
+    #[arg(long, default_value_t = 0)]
+    sensitivity: usize,
     /// Every int8 node writes floats (no u7 hand-over between consecutive int8 layers).
     #[arg(long)]
     no_chain: bool,
@@ -85,6 +89,7 @@ pub fn run(args: Args) -> Result<()> {
             min_sqnr_db: args.min_sqnr_db,
             keep_float: args.keep_float.clone(),
             chain: !args.no_chain,
+            sensitivity: args.sensitivity,
         },
     };
     let bar = progress::bar(0, "calibrate");

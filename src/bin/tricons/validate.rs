@@ -183,21 +183,29 @@ fn ground_truth(rec: &dyn Recording, i: usize) -> Result<(Vec<GtInstance>, Vec<V
 
 fn check_same_graph(profile: &QuantProfile, float_sha: &str, float: &Path) -> Result<()> {
     if !profile.onnx_sha256.eq_ignore_ascii_case(float_sha) {
-        bail!("--int8 was made from another graph than --float {} (sha256 {} vs {float_sha})", float.display(), profile.onnx_sha256);
+        bail!(
+            "--int8 was made from another graph than --float {} (sha256 {} vs {float_sha})",
+            float.display(),
+            profile.onnx_sha256
+        );
     }
     Ok(())
 }
 
-fn finish(
-    args: &Args,
+/// What a validation measured, before the summary.
+struct Measured {
     kind: ModelKind,
     frames: usize,
     items: usize,
     int8_nodes: usize,
     metrics: Vec<MetricRow>,
     outputs: Vec<OutputRow>,
-    mut times: [(Vec<f64>, Vec<f64>); 2],
-) -> Report {
+    /// (per frame, per item) milliseconds, float then int8.
+    times: [(Vec<f64>, Vec<f64>); 2],
+}
+
+fn finish(args: &Args, m: Measured) -> Report {
+    let Measured { kind, frames, items, int8_nodes, metrics, outputs, mut times } = m;
     let [(ff, fi), (qf, qi)] = &mut times;
     let latency_float = Latency { per_frame_median_ms: median(ff), per_item_median_ms: median(fi) };
     let latency_int8 = Latency { per_frame_median_ms: median(qf), per_item_median_ms: median(qi) };
@@ -265,7 +273,7 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
                     Some(PredInstance {
                         class: g.class,
                         score: 1.0,
-                        camera_from_object: e.camera_from_object.clone(),
+                        camera_from_object: e.camera_from_object,
                         size_m: e.size_m,
                         box2d: None,
                         mask: None,
@@ -276,8 +284,12 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
         for (a, b) in outcomes[0].iter().zip(&outcomes[1]) {
             if let (Ok(a), Ok(b)) = (a, b) {
                 items += 1;
-                let r = |e: &tricons::pose::PoseEstimate| e.camera_from_object.rotation.iter().copied().collect::<Vec<f64>>();
-                let t = |e: &tricons::pose::PoseEstimate| e.camera_from_object.translation_m.iter().copied().collect::<Vec<f64>>();
+                let r = |e: &tricons::pose::PoseEstimate| {
+                    e.camera_from_object.rotation.iter().copied().collect::<Vec<f64>>()
+                };
+                let t = |e: &tricons::pose::PoseEstimate| {
+                    e.camera_from_object.translation_m.iter().copied().collect::<Vec<f64>>()
+                };
                 let k = |e: &tricons::pose::PoseEstimate| {
                     e.keypoints_camera_m.iter().flatten().map(|&v| v as f64).collect::<Vec<f64>>()
                 };
@@ -296,12 +308,12 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
     let cfg = EvalConfig::standard(args.iou);
     let report_f = evaluate(gts.iter().zip(&preds_f).map(|(g, p)| (g.as_slice(), p.as_slice())), &cfg);
     let report_q = evaluate(gts.iter().zip(&preds_q).map(|(g, p)| (g.as_slice(), p.as_slice())), &cfg);
-    let metrics =
-        cfg.metric_names().iter().map(|m| metric_row(m, report_f.mean(m), report_q.mean(m))).collect();
+    let metrics = cfg.metric_names().iter().map(|m| metric_row(m, report_f.mean(m), report_q.mean(m))).collect();
     let names = ["R", "t_m", "s_m", "keypoints_m"];
     let outputs = acc.iter().zip(names).map(|(a, n)| a.row(n)).collect();
     let nodes = int8.quantized().map_or(0, |q| q.quantized);
-    Ok(finish(args, ModelKind::Pose, frames, items, nodes, metrics, outputs, times))
+    let int8_nodes = nodes;
+    Ok(finish(args, Measured { kind: ModelKind::Pose, frames, items, int8_nodes, metrics, outputs, times }))
 }
 
 fn objects(dets: &[SegInstance]) -> Vec<Object2d> {
@@ -322,6 +334,11 @@ fn validate_segmenter(args: &Args, rec: &dyn Recording, frames: usize, profile: 
     let int8 = Segmenter::load(&args.int8).with_context(|| "loading the int8 model (--int8)")?;
     let bytes = std::fs::read(float.onnx_path()).with_context(|| format!("reading {}", float.onnx_path().display()))?;
     check_same_graph(profile, &tricons::atomic::sha256_hex(&bytes), &args.float)?;
+    // Plans are built per image size on first use: build them before timing.
+    let first = rec.read_frame(0)?;
+    for seg in [&float, &int8] {
+        seg.prepare(first.color.width as usize, first.color.height as usize)?;
+    }
     let bar = progress::bar(frames, "validate");
     let (mut eval_f, mut eval_q) = (Vec::new(), Vec::new());
     let (mut boxes, mut scores, mut masks_iou) = (ErrorAcc::default(), ErrorAcc::default(), Vec::new());
@@ -391,7 +408,8 @@ fn validate_segmenter(args: &Args, rec: &dyn Recording, frames: usize, profile: 
         OutputRow { name: "unmatched_detections".into(), values: unmatched, max_abs: 0.0, cosine: 0.0 },
     ];
     let nodes = int8.quantized().map_or(0, |q| q.quantized);
-    Ok(finish(args, ModelKind::Segmenter, frames, items, nodes, metrics, outputs, times))
+    let int8_nodes = nodes;
+    Ok(finish(args, Measured { kind: ModelKind::Segmenter, frames, items, int8_nodes, metrics, outputs, times }))
 }
 
 fn print_report(r: &Report) {

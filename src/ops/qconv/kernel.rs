@@ -94,8 +94,7 @@ pub fn qconv(layer: &Int8Layer, x: LayerInput<'_>, g: &ConvGeometry, out: &mut [
     };
     let mut patches = vec![0u8; ho * wo * g.patch_len()];
     im2col_u7(xq, g, layer.input_params().zero_point as u8, &mut patches)?;
-    layer.run_u7(&patches, ho * wo, LayerOutput::F32Transposed(out)).map_err(|e| OpError::Kernel {
-        op: "QConv",
-        message: e.to_string(),
-    })
+    layer
+        .run_u7(&patches, ho * wo, LayerOutput::F32Transposed(out))
+        .map_err(|e| OpError::Kernel { op: "QConv", message: e.to_string() })
 }

@@ -87,10 +87,8 @@ onnx_rules!(QConv, "QConv", inputs: 1, outputs: 1, |op, s, inputs, outputs| {
     for axis in 0..2 {
         let op = op.clone();
         s.given(&inputs[0].shape[2 + axis], move |s, d| {
-            if let (Ok(d), o) = (d.to_usize(), &outputs[0].shape[2 + axis]) {
-                if let Some(len) = op.out_len(axis, d) {
-                    s.equals(o, len.to_dim())?;
-                }
+            if let Some(len) = d.to_usize().ok().and_then(|d| op.out_len(axis, d)) {
+                s.equals(&outputs[0].shape[2 + axis], len.to_dim())?;
             }
             Ok(())
         })?;

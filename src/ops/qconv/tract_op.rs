@@ -27,7 +27,8 @@ impl TractKernel for QConv {
         ensure!(s.len() == 4, "QConv {}: input rank {}, expected 4", self.name, s.len());
         let spatial = |axis: usize| -> TractResult<TDim> {
             let d = s[2 + axis].to_usize().map_err(|_| format_err!("QConv {}: symbolic spatial size", self.name))?;
-            let len = self.out_len(axis, d).ok_or_else(|| format_err!("QConv {}: kernel larger than input", self.name))?;
+            let len =
+                self.out_len(axis, d).ok_or_else(|| format_err!("QConv {}: kernel larger than input", self.name))?;
             Ok(len.to_dim())
         };
         Ok(tvec![f32::fact([s[0].clone(), self.layer.n().to_dim(), spatial(0)?, spatial(1)?])])

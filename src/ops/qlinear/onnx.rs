@@ -43,8 +43,7 @@ pub fn parse_layer(node: &NodeProto) -> TractResult<(Int8Layer, bool)> {
     ensure!(w.dims.len() == 2, "{name}: weight must be [k, n], has dims {:?}", w.dims);
     let (k, n) = (w.dims[0] as usize, w.dims[1] as usize);
     ensure!(w.raw_data.len() == 4 * k * n, "{name}: weight holds {} bytes, expected {}", w.raw_data.len(), 4 * k * n);
-    let weight: Vec<f32> =
-        w.raw_data.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let weight: Vec<f32> = w.raw_data.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
     let post_scale: Vec<f32> = node.get_attr_vec("post_scale")?;
     let bias: Vec<f32> = node.get_attr_vec("bias")?;
     let q = |prefix: &str| -> TractResult<Option<QParams>> {
@@ -63,8 +62,7 @@ pub fn parse_layer(node: &NodeProto) -> TractResult<(Int8Layer, bool)> {
     let relu = node.get_attr_opt::<i64>("relu")?.unwrap_or(0) != 0;
     let input_u7 = node.get_attr_opt::<i64>("input_u7")?.unwrap_or(0) != 0;
     let fold = OutputFold { post_scale: &post_scale, bias: &bias, relu };
-    let layer = Int8Layer::new(&weight, k, n, &fold, input, output)
-        .map_err(|e| format_err!("{name}: {e}"))?;
+    let layer = Int8Layer::new(&weight, k, n, &fold, input, output).map_err(|e| format_err!("{name}: {e}"))?;
     Ok((layer, input_u7))
 }
 

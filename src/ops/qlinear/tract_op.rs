@@ -19,7 +19,12 @@ impl TractKernel for QLinear {
     fn eval(&self, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
         let x = &inputs[0];
         let (k, n) = (self.layer.k(), self.layer.n());
-        ensure!(x.rank() >= 1 && x.shape()[x.rank() - 1] == k, "{}: input {:?}, expected (..., {k})", Self::NAME, x.shape());
+        ensure!(
+            x.rank() >= 1 && x.shape()[x.rank() - 1] == k,
+            "{}: input {:?}, expected (..., {k})",
+            Self::NAME,
+            x.shape()
+        );
         let m = x.len() / k;
         let mut shape: Vec<usize> = x.shape().to_vec();
         shape[x.rank() - 1] = n;

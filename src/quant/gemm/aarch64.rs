@@ -120,7 +120,11 @@ unsafe fn store<const MR: usize, const NV: usize>(
 
 /// `kq` activation bytes of each row from byte `off`, zero-padded past k (the k tail).
 #[inline(always)]
-unsafe fn padded_rows<const MR: usize, const KQ: usize>(rows: &[*const u8; MR], off: usize, k: usize) -> [[u8; KQ]; MR] {
+unsafe fn padded_rows<const MR: usize, const KQ: usize>(
+    rows: &[*const u8; MR],
+    off: usize,
+    k: usize,
+) -> [[u8; KQ]; MR] {
     let mut t = [[0u8; KQ]; MR];
     for r in 0..MR {
         // SAFETY: bytes off..k of a row of k bytes (off < k, k - off < KQ).
@@ -180,7 +184,11 @@ unsafe fn panel_dot<const MR: usize, const NV: usize>(job: &Job<'_>, panel: *con
 /// 16 k values (4 groups): `a[r]` holds them for row r, `b` points at group 0 of the block.
 #[inline]
 #[target_feature(enable = "neon,dotprod")]
-unsafe fn step_dot<const MR: usize, const NV: usize>(acc: &mut [[int32x4_t; NV]; MR], a: &[int8x16_t; MR], b: *const i8) {
+unsafe fn step_dot<const MR: usize, const NV: usize>(
+    acc: &mut [[int32x4_t; NV]; MR],
+    a: &[int8x16_t; MR],
+    b: *const i8,
+) {
     let pw = 4 * NV;
     macro_rules! group {
         ($g:literal) => {
@@ -201,7 +209,13 @@ unsafe fn step_dot<const MR: usize, const NV: usize>(acc: &mut [[int32x4_t; NV];
 
 #[inline]
 #[target_feature(enable = "neon,dotprod")]
-unsafe fn tile_dot<const MR: usize, const NV: usize>(job: &Job<'_>, panel: *const i8, j0: usize, i0: usize, rows: usize) {
+unsafe fn tile_dot<const MR: usize, const NV: usize>(
+    job: &Job<'_>,
+    panel: *const i8,
+    j0: usize,
+    i0: usize,
+    rows: usize,
+) {
     let (k, pw) = (job.k, 4 * NV);
     // SAFETY: rows i0..i0 + rows exist; blocks of 16 k below k are read from the rows, the
     // tail from a padded copy; the panel holds kp = k rounded up to 16.
@@ -287,7 +301,13 @@ unsafe fn step_neon<const MR: usize, const NV: usize>(
 
 #[inline]
 #[target_feature(enable = "neon")]
-unsafe fn tile_neon<const MR: usize, const NV: usize>(job: &Job<'_>, panel: *const i8, j0: usize, i0: usize, rows: usize) {
+unsafe fn tile_neon<const MR: usize, const NV: usize>(
+    job: &Job<'_>,
+    panel: *const i8,
+    j0: usize,
+    i0: usize,
+    rows: usize,
+) {
     let (k, pw) = (job.k, 4 * NV);
     // SAFETY: as in `tile_dot`, with blocks of 8 k (the panel holds k rounded up to 8).
     unsafe {

@@ -124,7 +124,13 @@ fn requant512(v: __m512, inv_scale: __m512, zp: __m512i) -> __m512i {
 
 #[inline]
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-unsafe fn tile512<const MR: usize, const NV: usize>(job: &Job<'_>, panel: *const i8, j0: usize, i0: usize, rows: usize) {
+unsafe fn tile512<const MR: usize, const NV: usize>(
+    job: &Job<'_>,
+    panel: *const i8,
+    j0: usize,
+    i0: usize,
+    rows: usize,
+) {
     let (k, pw) = (job.k, 16 * NV);
     // SAFETY: rows i0..i0 + rows exist.
     let rowp = unsafe { row_ptrs::<MR>(job, i0, rows) };
@@ -351,7 +357,8 @@ unsafe fn tile256<const MR: usize, const NV: usize, const VNNI: bool>(
                         if c == 8 {
                             _mm256_storeu_ps(dst, f[r][v]);
                         } else {
-                            let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(c), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+                            let mask =
+                                _mm256_cmpgt_epi32(_mm256_set1_epi32(c), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
                             _mm256_maskstore_ps(dst, mask, f[r][v]);
                         }
                     }
