@@ -119,7 +119,7 @@ pub struct QuantizeOptions {
 impl Default for QuantizeOptions {
     fn default() -> Self {
         QuantizeOptions {
-            range: RangeMethod::Percentile { percentile: 99.99 },
+            range: RangeMethod::MinMax,
             min_sqnr_db: 20.0,
             keep_float: Vec::new(),
             chain: true,

@@ -94,7 +94,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    /// Every kernel, slowest first.
+    /// Every kernel; within one architecture, slowest first.
     pub const ALL: [Kernel; 6] =
         [Kernel::Scalar, Kernel::Avx2, Kernel::AvxVnni, Kernel::Avx512Vnni, Kernel::Neon, Kernel::NeonDot];
 
@@ -110,6 +110,7 @@ impl Kernel {
             Kernel::Avx512Vnni => {
                 is_x86_feature_detected!("avx512f")
                     && is_x86_feature_detected!("avx512bw")
+                    && is_x86_feature_detected!("avx512vl")
                     && is_x86_feature_detected!("avx512vnni")
             }
             #[cfg(target_arch = "aarch64")]
@@ -555,27 +556,63 @@ impl Job<'_> {
             }
         }
     }
+}
 
-    /// Stores a finished tile `tile[r * stride + c]` (r < rows, c < cols) at (i0, j0).
+/// Transposed output goes through a scratch block of about this many rows per panel: the
+/// destination's columns are `ld` floats apart (often a multiple of 4 KiB for image sizes, so
+/// they share cache sets), and a few floats per column per tile would thrash those sets. The
+/// block gives each column a run of whole cache lines at once.
+#[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+const TRANSPOSED_BLOCK: usize = 64;
+
+/// The blocks of rows a SIMD kernel runs through one panel, and where their tiles store.
+#[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+struct RowBlocks {
+    /// Rows per block (a multiple of the tile height, or m for row-major outputs).
+    rows: usize,
+    /// `[pw][rows]` for transposed output, else empty.
+    scratch: Vec<f32>,
+}
+
+#[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+impl RowBlocks {
+    fn new(job: &Job<'_>, mr: usize, pw: usize) -> Self {
+        match job.dst {
+            Dst::F32T { .. } => {
+                let rows = TRANSPOSED_BLOCK.div_ceil(mr) * mr;
+                Self { rows, scratch: vec![0.0; rows * pw] }
+            }
+            _ => Self { rows: job.m, scratch: Vec::new() },
+        }
+    }
+
+    /// The destination of the block starting at row `ib` of the panel at column `j0`, and
+    /// the output coordinates of (ib, j0) in it.
+    fn target(&mut self, job: &Job<'_>, ib: usize, j0: usize) -> (Dst, usize, usize) {
+        if self.scratch.is_empty() {
+            (job.dst, ib, j0)
+        } else {
+            (Dst::F32T { ptr: self.scratch.as_mut_ptr(), ld: self.rows }, 0, 0)
+        }
+    }
+
+    /// Copies a finished block (rows `ib..ib + rows`, columns `j0..j0 + cols`) to the
+    /// transposed output; nothing for row-major outputs.
     ///
     /// # Safety
-    /// `i0 + rows <= m`, `j0 + cols <= n`, and `tile` holds `rows` rows of `stride >= cols`.
-    #[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
-    unsafe fn store_tile(&self, tile: &[f32], stride: usize, i0: usize, j0: usize, rows: usize, cols: usize) {
-        if let Dst::F32T { ptr, ld } = self.dst {
+    /// The rows and columns are inside the output (i.e. below m and n).
+    unsafe fn flush(&self, job: &Job<'_>, ib: usize, rows: usize, j0: usize, cols: usize) {
+        if let (Dst::F32T { ptr, ld }, false) = (job.dst, self.scratch.is_empty()) {
             for c in 0..cols {
-                // SAFETY: (j0 + c) * ld + i0 + r for r < rows <= m - i0 is in bounds (check_args).
-                let col = unsafe { std::slice::from_raw_parts_mut(ptr.add((j0 + c) * ld + i0), rows) };
-                for (r, o) in col.iter_mut().enumerate() {
-                    *o = tile[r * stride + c];
-                }
-            }
-        } else {
-            for r in 0..rows {
-                for c in 0..cols {
-                    // SAFETY: forwarded from the caller.
-                    unsafe { self.store(i0 + r, j0 + c, tile[r * stride + c]) };
-                }
+                // SAFETY: column c of the scratch holds `self.rows >= rows` floats; the
+                // destination run is inside the output (check_args, forwarded bounds).
+                unsafe {
+                    std::ptr::copy_nonoverlapping(
+                        self.scratch.as_ptr().add(c * self.rows),
+                        ptr.add((j0 + c) * ld + ib),
+                        rows,
+                    )
+                };
             }
         }
     }

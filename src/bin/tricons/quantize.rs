@@ -39,7 +39,7 @@ pub struct Args {
     #[arg(long)]
     out: PathBuf,
     /// Activation range method.
-    #[arg(long, value_enum, default_value_t = Method::Percentile)]
+    #[arg(long, value_enum, default_value_t = Method::Minmax)]
     method: Method,
     /// Upper percentile of --method percentile (the lower one is 100 minus it).
     #[arg(long, default_value_t = 99.99)]

@@ -21,7 +21,7 @@ use std::arch::aarch64::*;
 use std::arch::asm;
 use std::ptr;
 
-use super::{Dst, Job, quantize_one};
+use super::{Dst, Job, RowBlocks, quantize_one};
 
 /// Row pointers of a tile: rows past `rows` repeat the last valid row.
 ///
@@ -70,33 +70,34 @@ unsafe fn requant4(v: float32x4_t, inv_scale: f32, zp: i32) -> [u8; 4] {
     }
 }
 
-/// Stores the finished register tile `f` (MR rows x NV vectors of 4 columns).
+/// Stores the finished register tile `f` (MR rows x NV vectors of 4 columns) into `dst`,
+/// its (row 0, column 0) at output (oi, oj).
 ///
 /// # Safety
-/// Tile rows `i0..i0 + rows` (< m) and columns `j0..j0 + cols` (<= n) are in the output.
+/// `dst` holds rows `oi..oi + rows` and columns `oj..oj + cols` (columns below n).
 #[inline(always)]
 unsafe fn store<const MR: usize, const NV: usize>(
-    job: &Job<'_>,
     f: &[[float32x4_t; NV]; MR],
-    i0: usize,
-    j0: usize,
+    dst: Dst,
+    oi: usize,
+    oj: usize,
     rows: usize,
     cols: usize,
 ) {
-    // SAFETY: forwarded; every store stays below (i0 + rows, j0 + cols).
+    // SAFETY: forwarded; every store stays below (oi + rows, oj + cols).
     unsafe {
-        match job.dst {
+        match dst {
             Dst::F32 { ptr, ld } => {
                 for r in 0..rows {
                     for v in 0..NV {
                         let c = cols.saturating_sub(4 * v).min(4);
-                        let dst = ptr.add((i0 + r) * ld + j0 + 4 * v);
+                        let to = ptr.add((oi + r) * ld + oj + 4 * v);
                         if c == 4 {
-                            vst1q_f32(dst, f[r][v]);
+                            vst1q_f32(to, f[r][v]);
                         } else {
                             let mut t = [0f32; 4];
                             vst1q_f32(t.as_mut_ptr(), f[r][v]);
-                            ptr::copy_nonoverlapping(t.as_ptr(), dst, c);
+                            ptr::copy_nonoverlapping(t.as_ptr(), to, c);
                         }
                     }
                 }
@@ -106,13 +107,35 @@ unsafe fn store<const MR: usize, const NV: usize>(
                     for v in 0..NV {
                         let c = cols.saturating_sub(4 * v).min(4);
                         let q = requant4(f[r][v], inv_scale, zp);
-                        ptr::copy_nonoverlapping(q.as_ptr(), ptr.add((i0 + r) * ld + j0 + 4 * v), c);
+                        ptr::copy_nonoverlapping(q.as_ptr(), ptr.add((oi + r) * ld + oj + 4 * v), c);
                     }
                 }
             }
-            Dst::F32T { .. } => {
-                let tile = std::slice::from_raw_parts(f.as_ptr().cast::<f32>(), MR * NV * 4);
-                job.store_tile(tile, NV * 4, i0, j0, rows, cols);
+            Dst::F32T { ptr, ld } => {
+                // 4 rows at a time: a 4x4 transpose per vector gives columns of 4 rows.
+                for rb in (0..rows).step_by(4) {
+                    let g = (rows - rb).min(4);
+                    for v in 0..NV {
+                        let row = |i: usize| f[(rb + i).min(MR - 1)][v]; // rows past the tile unused
+                        let (t01, t23) = (vtrnq_f32(row(0), row(1)), vtrnq_f32(row(2), row(3)));
+                        let columns = [
+                            vcombine_f32(vget_low_f32(t01.0), vget_low_f32(t23.0)),
+                            vcombine_f32(vget_low_f32(t01.1), vget_low_f32(t23.1)),
+                            vcombine_f32(vget_high_f32(t01.0), vget_high_f32(t23.0)),
+                            vcombine_f32(vget_high_f32(t01.1), vget_high_f32(t23.1)),
+                        ];
+                        for (q, &x) in columns.iter().enumerate().take(cols.saturating_sub(4 * v)) {
+                            let to = ptr.add((oj + 4 * v + q) * ld + oi + rb);
+                            if g == 4 {
+                                vst1q_f32(to, x);
+                            } else {
+                                let mut t = [0f32; 4];
+                                vst1q_f32(t.as_mut_ptr(), x);
+                                ptr::copy_nonoverlapping(t.as_ptr(), to, g);
+                            }
+                        }
+                    }
+                }
             }
         }
     }
@@ -127,8 +150,12 @@ unsafe fn padded_rows<const MR: usize, const KQ: usize>(
 ) -> [[u8; KQ]; MR] {
     let mut t = [[0u8; KQ]; MR];
     for r in 0..MR {
-        // SAFETY: bytes off..k of a row of k bytes (off < k, k - off < KQ).
-        unsafe { ptr::copy_nonoverlapping(rows[r].add(off), t[r].as_mut_ptr(), k - off) };
+        for i in 0..KQ {
+            if off + i < k {
+                // SAFETY: a byte below k of a row of k bytes.
+                t[r][i] = unsafe { *rows[r].add(off + i) };
+            }
+        }
     }
     t
 }
@@ -175,9 +202,18 @@ pub(super) unsafe fn gemm_dot(job: &Job<'_>) {
 #[inline]
 #[target_feature(enable = "neon,dotprod")]
 unsafe fn panel_dot<const MR: usize, const NV: usize>(job: &Job<'_>, panel: *const i8, j0: usize) {
-    for i0 in (0..job.m).step_by(MR) {
-        // SAFETY: forwarded; 1 <= rows <= m - i0.
-        unsafe { tile_dot::<MR, NV>(job, panel, j0, i0, MR.min(job.m - i0)) };
+    let mut blocks = RowBlocks::new(job, MR, 4 * NV);
+    for ib in (0..job.m).step_by(blocks.rows) {
+        let end = (ib + blocks.rows).min(job.m);
+        let (dst, oi, oj) = blocks.target(job, ib, j0);
+        // SAFETY: forwarded; 1 <= rows <= end - i0; the target holds the block, whose rows
+        // and columns are inside the output.
+        unsafe {
+            for i0 in (ib..end).step_by(MR) {
+                tile_dot::<MR, NV>(job, panel, j0, i0, MR.min(end - i0), dst, oi + i0 - ib, oj);
+            }
+            blocks.flush(job, ib, end - ib, j0, (4 * NV).min(job.n - j0));
+        }
     }
 }
 
@@ -209,12 +245,16 @@ unsafe fn step_dot<const MR: usize, const NV: usize>(
 
 #[inline]
 #[target_feature(enable = "neon,dotprod")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn tile_dot<const MR: usize, const NV: usize>(
     job: &Job<'_>,
     panel: *const i8,
     j0: usize,
     i0: usize,
     rows: usize,
+    dst: Dst,
+    oi: usize,
+    oj: usize,
 ) {
     let (k, pw) = (job.k, 4 * NV);
     // SAFETY: rows i0..i0 + rows exist; blocks of 16 k below k are read from the rows, the
@@ -242,7 +282,7 @@ unsafe fn tile_dot<const MR: usize, const NV: usize>(
                 f[r][v] = finish4(job, acc[r][v], j0 + 4 * v);
             }
         }
-        store(job, &f, i0, j0, rows, pw.min(job.n - j0));
+        store(&f, dst, oi, oj, rows, pw.min(job.n - j0));
     }
 }
 
@@ -268,9 +308,18 @@ pub(super) unsafe fn gemm_neon(job: &Job<'_>) {
 #[inline]
 #[target_feature(enable = "neon")]
 unsafe fn panel_neon<const MR: usize, const NV: usize>(job: &Job<'_>, panel: *const i8, j0: usize) {
-    for i0 in (0..job.m).step_by(MR) {
-        // SAFETY: forwarded; 1 <= rows <= m - i0.
-        unsafe { tile_neon::<MR, NV>(job, panel, j0, i0, MR.min(job.m - i0)) };
+    let mut blocks = RowBlocks::new(job, MR, 4 * NV);
+    for ib in (0..job.m).step_by(blocks.rows) {
+        let end = (ib + blocks.rows).min(job.m);
+        let (dst, oi, oj) = blocks.target(job, ib, j0);
+        // SAFETY: forwarded; 1 <= rows <= end - i0; the target holds the block, whose rows
+        // and columns are inside the output.
+        unsafe {
+            for i0 in (ib..end).step_by(MR) {
+                tile_neon::<MR, NV>(job, panel, j0, i0, MR.min(end - i0), dst, oi + i0 - ib, oj);
+            }
+            blocks.flush(job, ib, end - ib, j0, (4 * NV).min(job.n - j0));
+        }
     }
 }
 
@@ -301,12 +350,16 @@ unsafe fn step_neon<const MR: usize, const NV: usize>(
 
 #[inline]
 #[target_feature(enable = "neon")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn tile_neon<const MR: usize, const NV: usize>(
     job: &Job<'_>,
     panel: *const i8,
     j0: usize,
     i0: usize,
     rows: usize,
+    dst: Dst,
+    oi: usize,
+    oj: usize,
 ) {
     let (k, pw) = (job.k, 4 * NV);
     // SAFETY: as in `tile_dot`, with blocks of 8 k (the panel holds k rounded up to 8).
@@ -334,7 +387,7 @@ unsafe fn tile_neon<const MR: usize, const NV: usize>(
                 f[r][v] = finish4(job, c, j0 + 4 * v);
             }
         }
-        store(job, &f, i0, j0, rows, pw.min(job.n - j0));
+        store(&f, dst, oi, oj, rows, pw.min(job.n - j0));
     }
 }
 

@@ -18,7 +18,7 @@
 use std::arch::x86_64::*;
 use std::ptr;
 
-use super::{Dst, Job, quantize_one};
+use super::{Dst, Job, RowBlocks, quantize_one};
 
 /// Row pointers of a tile: rows past `rows` repeat the last valid row.
 ///
@@ -42,8 +42,12 @@ unsafe fn row_ptrs<const MR: usize>(job: &Job<'_>, i0: usize, rows: usize) -> [*
 unsafe fn tail_words<const MR: usize>(rows: &[*const u8; MR], k: usize) -> [[u8; 4]; MR] {
     let mut tail = [[0u8; 4]; MR];
     for r in 0..MR {
-        // SAFETY: bytes k / 4 * 4 .. k of a row of k bytes; the copy fits in 4 bytes.
-        unsafe { ptr::copy_nonoverlapping(rows[r].add(k / 4 * 4), tail[r].as_mut_ptr(), k % 4) };
+        for t in 0..3 {
+            if k / 4 * 4 + t < k {
+                // SAFETY: a byte below k of a row of k bytes.
+                tail[r][t] = unsafe { *rows[r].add(k / 4 * 4 + t) };
+            }
+        }
     }
     tail
 }
@@ -59,9 +63,10 @@ fn mask16(c: usize) -> u16 {
 // ---------------------------------------------------------------------------------------
 
 /// # Safety
-/// `job` comes from `qgemm` (checked), the CPU has avx512f, avx512bw and avx512vnni, and the
+/// `job` comes from `qgemm` (checked), the CPU has avx512f, avx512bw, avx512vl and avx512vnni,
+/// and the
 /// weights are packed for [`super::Kernel::Avx512Vnni`].
-#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni")]
 pub(super) unsafe fn gemm_avx512(job: &Job<'_>) {
     let data = job.w.data().as_ptr();
     for (j0, pw, off) in job.w.panels() {
@@ -78,11 +83,18 @@ pub(super) unsafe fn gemm_avx512(job: &Job<'_>) {
 }
 
 #[inline]
-#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni")]
 unsafe fn panel512<const MR: usize, const NV: usize>(job: &Job<'_>, panel: *const i8, j0: usize) {
-    for i0 in (0..job.m).step_by(MR) {
-        // SAFETY: forwarded; 1 <= rows <= m - i0.
-        unsafe { tile512::<MR, NV>(job, panel, j0, i0, MR.min(job.m - i0)) };
+    let mut blocks = RowBlocks::new(job, MR, 16 * NV);
+    for ib in (0..job.m).step_by(blocks.rows) {
+        let end = (ib + blocks.rows).min(job.m);
+        let (dst, oi, oj) = blocks.target(job, ib, j0);
+        for i0 in (ib..end).step_by(MR) {
+            // SAFETY: forwarded; 1 <= rows <= end - i0; the target holds the block.
+            unsafe { tile512::<MR, NV>(job, panel, j0, i0, MR.min(end - i0), dst, oi + i0 - ib, oj) };
+        }
+        // SAFETY: rows ib..end < m, columns j0.. below n.
+        unsafe { blocks.flush(job, ib, end - ib, j0, (16 * NV).min(job.n - j0)) };
     }
 }
 
@@ -122,14 +134,45 @@ fn requant512(v: __m512, inv_scale: __m512, zp: __m512i) -> __m512i {
     _mm512_min_epi32(_mm512_max_epi32(q, _mm512_setzero_si512()), _mm512_set1_epi32(127))
 }
 
+/// Stores the first `c` (1..=16) of 16 lanes in 0..=127 as bytes. (The register form of
+/// vpmovdb and a plain store: the masked memory form is slow on AMD Zen 4.)
+///
+/// # Safety
+/// `dst` is valid for `c` bytes.
 #[inline]
-#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+#[target_feature(enable = "avx512f")]
+unsafe fn store_u7x16(dst: *mut u8, q: __m512i, c: usize) {
+    let bytes = _mm512_cvtepi32_epi8(q);
+    // SAFETY: 16 bytes when c == 16, else c bytes through a copy.
+    unsafe {
+        if c >= 16 {
+            _mm_storeu_si128(dst.cast(), bytes);
+        } else {
+            let mut t = [0u8; 16];
+            _mm_storeu_si128(t.as_mut_ptr().cast(), bytes);
+            ptr::copy_nonoverlapping(t.as_ptr(), dst, c);
+        }
+    }
+}
+
+/// One tile: rows `i0..i0 + rows` (the tile computes MR, repeating the last row) times the
+/// panel at column `j0`, stored into `dst` with its (row 0, column 0) at output (oi, oj).
+///
+/// # Safety
+/// Rows exist, the panel is packed for this kernel, and `dst` holds `rows` rows and the
+/// panel's valid columns from (oi, oj).
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn tile512<const MR: usize, const NV: usize>(
     job: &Job<'_>,
     panel: *const i8,
     j0: usize,
     i0: usize,
     rows: usize,
+    dst: Dst,
+    oi: usize,
+    oj: usize,
 ) {
     let (k, pw) = (job.k, 16 * NV);
     // SAFETY: rows i0..i0 + rows exist.
@@ -174,13 +217,13 @@ unsafe fn tile512<const MR: usize, const NV: usize>(
         }
     }
     let cols = pw.min(job.n - j0);
-    match job.dst {
+    match dst {
         Dst::F32 { ptr, ld } => {
             for r in 0..rows {
                 for v in 0..NV {
                     let mask = mask16(cols.saturating_sub(16 * v));
-                    // SAFETY: row i0 + r < m; the mask keeps columns below n.
-                    unsafe { _mm512_mask_storeu_ps(ptr.add((i0 + r) * ld + j0 + 16 * v), mask, f[r][v]) };
+                    // SAFETY: row oi + r of the target; the mask keeps columns below n.
+                    unsafe { _mm512_mask_storeu_ps(ptr.add((oi + r) * ld + oj + 16 * v), mask, f[r][v]) };
                 }
             }
         }
@@ -188,18 +231,63 @@ unsafe fn tile512<const MR: usize, const NV: usize>(
             let (inv, zp) = (_mm512_set1_ps(inv_scale), _mm512_set1_epi32(zp));
             for r in 0..rows {
                 for v in 0..NV {
-                    let mask = mask16(cols.saturating_sub(16 * v));
-                    let q = requant512(f[r][v], inv, zp);
-                    // SAFETY: as for F32.
-                    unsafe { _mm512_mask_cvtepi32_storeu_epi8(ptr.add((i0 + r) * ld + j0 + 16 * v).cast(), mask, q) };
+                    let c = cols.saturating_sub(16 * v).min(16);
+                    // SAFETY: row oi + r of the target, c bytes from a column below n.
+                    unsafe { store_u7x16(ptr.add((oi + r) * ld + oj + 16 * v), requant512(f[r][v], inv, zp), c) };
                 }
             }
         }
-        Dst::F32T { .. } => {
-            // SAFETY: `f` is MR rows of `pw` contiguous f32; rows/cols are inside the output.
-            unsafe {
-                let tile = std::slice::from_raw_parts(f.as_ptr().cast::<f32>(), MR * pw);
-                job.store_tile(tile, pw, i0, j0, rows, cols);
+        Dst::F32T { ptr, ld } => {
+            // SAFETY: rows i0..i0 + rows and columns j0..j0 + cols are inside the output.
+            unsafe { store_transposed512(&f, ptr, ld, oi, oj, rows, cols) };
+        }
+    }
+}
+
+/// Stores the tile transposed, `out[(j0 + c) * ld + i0 + r]`, 4 rows at a time: two rounds of
+/// shuffles turn 4 row vectors into 16 columns of 4 (one per 128-bit lane), each stored with
+/// a row mask.
+///
+/// # Safety
+/// Rows `i0..i0 + rows` and columns `j0..j0 + cols` are inside the (transposed) output.
+#[inline]
+#[target_feature(enable = "avx512f,avx512vl")]
+unsafe fn store_transposed512<const MR: usize, const NV: usize>(
+    f: &[[__m512; NV]; MR],
+    ptr: *mut f32,
+    ld: usize,
+    i0: usize,
+    j0: usize,
+    rows: usize,
+    cols: usize,
+) {
+    for rb in (0..rows).step_by(4) {
+        let mask = (1u8 << (rows - rb).min(4)) - 1;
+        for v in 0..NV {
+            let row = |i: usize| f[(rb + i).min(MR - 1)][v]; // rows past the tile are masked
+            let (t0, t1) = (_mm512_unpacklo_ps(row(0), row(1)), _mm512_unpackhi_ps(row(0), row(1)));
+            let (t2, t3) = (_mm512_unpacklo_ps(row(2), row(3)), _mm512_unpackhi_ps(row(2), row(3)));
+            // Lane l of u[q] holds rows rb..rb + 4 of column 16v + 4l + q.
+            let u = [
+                _mm512_shuffle_ps::<0x44>(t0, t2),
+                _mm512_shuffle_ps::<0xee>(t0, t2),
+                _mm512_shuffle_ps::<0x44>(t1, t3),
+                _mm512_shuffle_ps::<0xee>(t1, t3),
+            ];
+            for (q, &u) in u.iter().enumerate() {
+                let lanes = [
+                    _mm512_castps512_ps128(u),
+                    _mm512_extractf32x4_ps::<1>(u),
+                    _mm512_extractf32x4_ps::<2>(u),
+                    _mm512_extractf32x4_ps::<3>(u),
+                ];
+                for (l, &x) in lanes.iter().enumerate() {
+                    let c = 16 * v + 4 * l + q;
+                    if c < cols {
+                        // SAFETY: column j0 + c < n, rows rb.. below i0 + rows (mask).
+                        unsafe { _mm_mask_storeu_ps(ptr.add((j0 + c) * ld + i0 + rb), mask, x) };
+                    }
+                }
             }
         }
     }
@@ -249,9 +337,17 @@ unsafe fn gemm256<const VNNI: bool>(job: &Job<'_>) {
 
 #[inline(always)]
 unsafe fn panel256<const MR: usize, const NV: usize, const VNNI: bool>(job: &Job<'_>, panel: *const i8, j0: usize) {
-    for i0 in (0..job.m).step_by(MR) {
-        // SAFETY: forwarded; 1 <= rows <= m - i0.
-        unsafe { tile256::<MR, NV, VNNI>(job, panel, j0, i0, MR.min(job.m - i0)) };
+    let mut blocks = RowBlocks::new(job, MR, 8 * NV);
+    for ib in (0..job.m).step_by(blocks.rows) {
+        let end = (ib + blocks.rows).min(job.m);
+        let (dst, oi, oj) = blocks.target(job, ib, j0);
+        // SAFETY: as in `panel512`.
+        unsafe {
+            for i0 in (ib..end).step_by(MR) {
+                tile256::<MR, NV, VNNI>(job, panel, j0, i0, MR.min(end - i0), dst, oi + i0 - ib, oj);
+            }
+            blocks.flush(job, ib, end - ib, j0, (8 * NV).min(job.n - j0));
+        }
     }
 }
 
@@ -310,12 +406,16 @@ unsafe fn pack8(q: __m256i) -> [u8; 8] {
 }
 
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 unsafe fn tile256<const MR: usize, const NV: usize, const VNNI: bool>(
     job: &Job<'_>,
     panel: *const i8,
     j0: usize,
     i0: usize,
     rows: usize,
+    dst: Dst,
+    oi: usize,
+    oj: usize,
 ) {
     let (k, pw) = (job.k, 8 * NV);
     // SAFETY: as in `tile512`; the caller enables avx2 (+ avxvnni).
@@ -348,18 +448,18 @@ unsafe fn tile256<const MR: usize, const NV: usize, const VNNI: bool>(
             }
         }
         let cols = pw.min(job.n - j0);
-        match job.dst {
+        match dst {
             Dst::F32 { ptr, ld } => {
                 for r in 0..rows {
                     for v in 0..NV {
                         let c = cols.saturating_sub(8 * v).min(8) as i32;
-                        let dst = ptr.add((i0 + r) * ld + j0 + 8 * v);
+                        let to = ptr.add((oi + r) * ld + oj + 8 * v);
                         if c == 8 {
-                            _mm256_storeu_ps(dst, f[r][v]);
+                            _mm256_storeu_ps(to, f[r][v]);
                         } else {
                             let mask =
                                 _mm256_cmpgt_epi32(_mm256_set1_epi32(c), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
-                            _mm256_maskstore_ps(dst, mask, f[r][v]);
+                            _mm256_maskstore_ps(to, mask, f[r][v]);
                         }
                     }
                 }
@@ -370,13 +470,57 @@ unsafe fn tile256<const MR: usize, const NV: usize, const VNNI: bool>(
                     for v in 0..NV {
                         let c = cols.saturating_sub(8 * v).min(8);
                         let bytes = pack8(requant256(f[r][v], inv, zp));
-                        ptr::copy_nonoverlapping(bytes.as_ptr(), ptr.add((i0 + r) * ld + j0 + 8 * v), c);
+                        ptr::copy_nonoverlapping(bytes.as_ptr(), ptr.add((oi + r) * ld + oj + 8 * v), c);
                     }
                 }
             }
-            Dst::F32T { .. } => {
-                let tile = std::slice::from_raw_parts(f.as_ptr().cast::<f32>(), MR * pw);
-                job.store_tile(tile, pw, i0, j0, rows, cols);
+            Dst::F32T { ptr, ld } => store_transposed256(&f, ptr, ld, oi, oj, rows, cols),
+        }
+    }
+}
+
+/// [`store_transposed512`] for 8 columns; partial row groups go through a copy (AVX masked
+/// stores are slow on some cores).
+#[inline(always)]
+unsafe fn store_transposed256<const MR: usize, const NV: usize>(
+    f: &[[__m256; NV]; MR],
+    ptr: *mut f32,
+    ld: usize,
+    i0: usize,
+    j0: usize,
+    rows: usize,
+    cols: usize,
+) {
+    // SAFETY: the caller enables avx2; stores as in `store_transposed512`.
+    unsafe {
+        for rb in (0..rows).step_by(4) {
+            let g = (rows - rb).min(4);
+            for v in 0..NV {
+                let row = |i: usize| f[(rb + i).min(MR - 1)][v];
+                let (t0, t1) = (_mm256_unpacklo_ps(row(0), row(1)), _mm256_unpackhi_ps(row(0), row(1)));
+                let (t2, t3) = (_mm256_unpacklo_ps(row(2), row(3)), _mm256_unpackhi_ps(row(2), row(3)));
+                let u = [
+                    _mm256_shuffle_ps::<0x44>(t0, t2),
+                    _mm256_shuffle_ps::<0xee>(t0, t2),
+                    _mm256_shuffle_ps::<0x44>(t1, t3),
+                    _mm256_shuffle_ps::<0xee>(t1, t3),
+                ];
+                for (q, &u) in u.iter().enumerate() {
+                    for (l, x) in [_mm256_castps256_ps128(u), _mm256_extractf128_ps::<1>(u)].into_iter().enumerate() {
+                        let c = 8 * v + 4 * l + q;
+                        if c >= cols {
+                            continue;
+                        }
+                        let dst = ptr.add((j0 + c) * ld + i0 + rb);
+                        if g == 4 {
+                            _mm_storeu_ps(dst, x);
+                        } else {
+                            let mut t = [0f32; 4];
+                            _mm_storeu_ps(t.as_mut_ptr(), x);
+                            ptr::copy_nonoverlapping(t.as_ptr(), dst, g);
+                        }
+                    }
+                }
             }
         }
     }
@@ -405,11 +549,11 @@ pub(super) fn quantize(x: &[f32], inv_scale: f32, zero_point: i32, out: &mut [u8
 unsafe fn quantize512(x: &[f32], inv_scale: f32, zero_point: i32, out: &mut [u8]) {
     let (inv, zp) = (_mm512_set1_ps(inv_scale), _mm512_set1_epi32(zero_point));
     for (xs, os) in x.chunks(16).zip(out.chunks_mut(16)) {
-        let mask = mask16(xs.len());
-        // SAFETY: masked load/store of the chunk's `len` lanes (masked lanes never fault).
+        // SAFETY: masked load of the chunk's `len` lanes (masked lanes never fault), `len`
+        // bytes stored.
         unsafe {
-            let q = requant512(_mm512_maskz_loadu_ps(mask, xs.as_ptr()), inv, zp);
-            _mm512_mask_cvtepi32_storeu_epi8(os.as_mut_ptr().cast(), mask, q);
+            let q = requant512(_mm512_maskz_loadu_ps(mask16(xs.len()), xs.as_ptr()), inv, zp);
+            store_u7x16(os.as_mut_ptr(), q, xs.len());
         }
     }
 }
