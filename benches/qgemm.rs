@@ -2,12 +2,14 @@
 //!
 //! `cargo bench --bench qgemm`. Shapes: the pose network's per-point layers ([512 x 128] x
 //! [128 x 128], [512 x 384] x [384 x 128], [4096 x 128] x [128 x 128]) and a 3x3 convolution
-//! of 128 channels at 80 x 80 as a GEMM ([6400 x 1152] x [1152 x 128]). For each:
+//! of 128 channels at 80 x 80 as a GEMM ([6400 x 1152] x [1152 x 128]) and an early one (16 to
+//! 32 channels at 160 x 160: [25600 x 144] x [144 x 32]). For each:
 //! `tract-f32` (a one-node TypedModel, EinSum `mk,kn->mn` with constant weights, optimised:
 //! tract's packed f32 kernels), `int8` ([`qgemm`] with the best kernel of the CPU, f32 output
 //! with bias and ReLU), `int8+quantize` (the f32 input quantised first, as a layer fed with
-//! floats does) and, for the convolution, `int8-nchw` (transposed output). Throughput is in
-//! multiply-adds (m * k * n).
+//! floats does), `int8-u7out` (output requantised for the next int8 layer) and, for the
+//! convolutions, `int8-nchw` (transposed output). Throughput is in multiply-adds (m * k * n).
+//! `qgemm-kernels` runs every kernel of the CPU on one shape.
 
 use std::hint::black_box;
 
@@ -46,6 +48,7 @@ fn bench_qgemm(c: &mut Criterion) {
         ("pts512-384x128", 512, 384, 128),
         ("pts4096-128x128", 4096, 128, 128),
         ("conv3x3-80x80-128ch", 6400, 1152, 128),
+        ("conv3x3-160x160-16to32ch", 25600, 144, 32),
     ];
     let kernel = Kernel::best();
     let mut group = c.benchmark_group(format!("qgemm-{kernel}"));
@@ -79,6 +82,13 @@ fn bench_qgemm(c: &mut Criterion) {
                 qgemm(&a, m, k, &packed, &stage, Output::F32 { out: &mut out, ld: n }).expect("qgemm")
             })
         });
+        let mut out8 = vec![0u8; m * n];
+        group.bench_function(BenchmarkId::new("int8-u7out", label), |b| {
+            b.iter(|| {
+                let out = Output::U7 { out: &mut out8, ld: n, inv_scale: 10.0, zero_point: 20 };
+                qgemm(black_box(&a), m, k, &packed, &stage, out).expect("qgemm")
+            })
+        });
         if m > 4096 {
             group.bench_function(BenchmarkId::new("int8-nchw", label), |b| {
                 b.iter(|| {
@@ -91,9 +101,28 @@ fn bench_qgemm(c: &mut Criterion) {
     group.finish();
 }
 
+/// Every kernel of the CPU on one shape ([4096 x 128] x [128 x 128], f32 output).
+fn bench_kernels(c: &mut Criterion) {
+    let (m, k, n) = (4096, 128, 128);
+    let mut group = c.benchmark_group("qgemm-kernels");
+    group.throughput(Throughput::Elements((m * k * n) as u64));
+    let a: Vec<u8> = values(m * k, 4).iter().map(|v| (v * 63.0 + 64.0) as u8).collect();
+    let w: Vec<i8> = values(k * n, 5).iter().map(|v| (v * 127.0) as i8).collect();
+    let scale = vec![1e-4f32; n];
+    let stage = OutputStage { a_zero_point: 64, scale: &scale, bias: None, relu: false };
+    let mut out = vec![0f32; m * n];
+    for kernel in Kernel::available() {
+        let packed = PackedWeights::with_kernel(&w, k, n, kernel).expect("pack");
+        group.bench_function(BenchmarkId::new(kernel.name(), "pts4096-128x128"), |b| {
+            b.iter(|| qgemm(black_box(&a), m, k, &packed, &stage, Output::F32 { out: &mut out, ld: n }).expect("qgemm"))
+        });
+    }
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(20);
-    targets = bench_qgemm
+    targets = bench_qgemm, bench_kernels
 }
 criterion_main!(benches);
