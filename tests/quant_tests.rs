@@ -347,3 +347,38 @@ fn quantize_refuses_unusable_calibration_and_models_without_int8_nodes() {
     assert_clean_failure(&o, "no node of the model can run in int8");
     assert!(!out.exists(), "a failed quantize must not leave a profile");
 }
+
+#[test]
+fn the_most_sensitive_nodes_go_float_and_the_rest_still_loads() {
+    use tricons::quant::calibrate::keep_most_sensitive_float;
+    let est = PoseEstimator::load(Path::new(&repo("models/tricons-pose.card.json"))).unwrap();
+    let proto = est.float_proto().unwrap();
+    let graph = proto.graph.as_ref().unwrap();
+    let mut p = QuantProfile::read(Path::new(&repo("models/tricons-pose.int8.json"))).unwrap();
+    let n = p.nodes.len();
+    // Pretend the nodes handing u7 to the next are the most sensitive: the links must be redone.
+    let errors: Vec<f64> =
+        p.nodes.iter().enumerate().map(|(i, q)| if q.output_u7.is_some() { 1.0 + i as f64 } else { 0.0 }).collect();
+    let worst: Vec<String> = {
+        let mut idx: Vec<usize> = (0..n).collect();
+        idx.sort_by(|&a, &b| errors[b].total_cmp(&errors[a]));
+        idx.iter().take(3).map(|&i| p.nodes[i].node.clone()).collect()
+    };
+    keep_most_sensitive_float(&mut p, graph, &errors, 3, true);
+    assert_eq!(p.nodes.len(), n - 3);
+    for w in &worst {
+        let f = p.float.iter().find(|f| &f.node == w).expect("moved to float");
+        assert!(f.reason.starts_with("sensitivity"), "{}", f.reason);
+    }
+    // Every u7 consumer still has an int8 producer handing it u7: the rewrite accepts it and runs.
+    let dir = tempfile::tempdir().unwrap();
+    p.model = std::path::PathBuf::from(repo("models/tricons-pose.card.json"));
+    let path = dir.path().join("s.int8.json");
+    p.write(&path).unwrap();
+    let q = PoseEstimator::load(&path).unwrap();
+    let rec = open_recording(Path::new(&repo("tests/data/synthnocs-demo"))).unwrap();
+    let frame = rec.read_frame(0).unwrap();
+    let masks = rec.read_annotations(0).unwrap().unwrap().instance_masks().unwrap();
+    let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
+    assert!(q.estimate(&frame, &refs, 0).unwrap().iter().any(|o| o.is_ok()));
+}

@@ -57,6 +57,12 @@ impl StatsCollector {
         Ok((proto, StatsCollector { names: names.to_vec(), slots, stats, runs: 0 }))
     }
 
+    /// [`Self::new`] for the activation inputs of every quantizable candidate of `proto`.
+    pub fn for_candidates(proto: &ModelProto) -> Result<(ModelProto, StatsCollector)> {
+        let graph = proto.graph.as_ref().ok_or_else(|| Error::InvalidArgument("the model holds no graph".into()))?;
+        Self::new(proto, &observed_tensors(graph))
+    }
+
     /// Account one run: the inputs given and the outputs returned.
     pub fn observe(&mut self, inputs: &[TValue], outputs: &[TValue]) -> Result<()> {
         for ((name, slot), st) in self.names.iter().zip(&self.slots).zip(&mut self.stats) {

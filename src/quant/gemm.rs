@@ -169,6 +169,21 @@ impl fmt::Display for Kernel {
 // Quantisation
 // ---------------------------------------------------------------------------------------
 
+/// Row pointers of a tile: rows past `rows` repeat the last valid row.
+///
+/// # Safety
+/// Rows `i0..i0 + rows` of `a` exist (`rows >= 1`).
+#[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+#[inline(always)]
+unsafe fn row_ptrs<const MR: usize>(job: &Job<'_>, i0: usize, rows: usize) -> [*const u8; MR] {
+    let mut p = [job.a; MR];
+    for (r, p) in p.iter_mut().enumerate() {
+        // SAFETY: i0 + min(r, rows - 1) < m, and row starts are in bounds (check_args).
+        *p = unsafe { job.a.add((i0 + r.min(rows - 1)) * job.lda) };
+    }
+    p
+}
+
 /// One value: `clamp(round_ties_even(x * inv_scale) + zero_point, 0, 127)`, NaN -> zero point.
 /// `zero_point` must be in `0..=127` (checked by the public entry points).
 #[inline]

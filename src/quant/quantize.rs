@@ -12,8 +12,8 @@ use std::collections::HashMap;
 use tract_onnx::pb::ModelProto;
 
 use super::calibrate::{
-    ProfileTarget, QuantizeOptions, StatsCollector, build_profile, keep_most_sensitive_float, observed_tensors,
-    output_error, single_node_profile,
+    ProfileTarget, QuantizeOptions, StatsCollector, build_profile, keep_most_sensitive_float, output_error,
+    single_node_profile,
 };
 use super::params::TensorStats;
 use super::profile::{CalibrationInfo, ModelKind, QuantProfile};
@@ -132,9 +132,7 @@ fn calibrate_pose(
     let estimator = PoseEstimator::load(&job.model)?;
     let segmenter = job.segmenter.as_deref().map(Segmenter::load).transpose()?;
     let proto = estimator.float_proto()?;
-    let graph = proto.graph.as_ref().ok_or_else(|| Error::model(&job.model, "the file holds no graph"))?;
-    let names = observed_tensors(graph);
-    let (observed, mut collector) = StatsCollector::new(&proto, &names)?;
+    let (observed, mut collector) = StatsCollector::for_candidates(&proto)?;
     let plan = estimator.plan_variant(&observed)?;
     let mut samples = Vec::new();
     for i in 0..frames {
@@ -174,9 +172,7 @@ fn calibrate_segmenter(
 ) -> Result<Calibrated> {
     let seg = Segmenter::load(&job.model)?;
     let proto = seg.float_proto()?;
-    let graph = proto.graph.as_ref().ok_or_else(|| Error::model(&job.model, "the file holds no graph"))?;
-    let names = observed_tensors(graph);
-    let (observed, mut collector) = StatsCollector::new(&proto, &names)?;
+    let (observed, mut collector) = StatsCollector::for_candidates(&proto)?;
     let mut plans: std::collections::HashMap<(u32, u32), std::sync::Arc<TypedRunnableModel>> = Default::default();
     for i in 0..frames {
         let frame = rec.read_frame(i)?;

@@ -21,21 +21,7 @@ use std::arch::aarch64::*;
 use std::arch::asm;
 use std::ptr;
 
-use super::{Dst, Job, RowBlocks, quantize_one};
-
-/// Row pointers of a tile: rows past `rows` repeat the last valid row.
-///
-/// # Safety
-/// Rows `i0..i0 + rows` of `a` exist (`rows >= 1`).
-#[inline(always)]
-unsafe fn row_ptrs<const MR: usize>(job: &Job<'_>, i0: usize, rows: usize) -> [*const u8; MR] {
-    let mut p = [job.a; MR];
-    for (r, p) in p.iter_mut().enumerate() {
-        // SAFETY: i0 + min(r, rows - 1) < m, and row starts are in bounds (check_args).
-        *p = unsafe { job.a.add((i0 + r.min(rows - 1)) * job.lda) };
-    }
-    p
-}
+use super::{Dst, Job, RowBlocks, quantize_one, row_ptrs};
 
 /// The output stage of 4 lanes: the scalar operations, lane by lane.
 #[inline(always)]
