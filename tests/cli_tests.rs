@@ -22,6 +22,9 @@ fn every_command_has_help_with_an_example() {
         &["inspect", "--help"],
         &["replay", "--help"],
         &["segment", "--help"],
+        &["bench", "--help"],
+        &["quantize", "--help"],
+        &["validate", "--help"],
     ] {
         let o = tricons(cmd);
         assert!(o.status.success());

@@ -194,10 +194,10 @@ mod tests {
 
     #[test]
     fn weights_use_the_full_range_per_channel() {
-        let w = [1.0, -0.01, -2.0, 0.02, 0.5, 0.0];
+        let w = [1.0, -0.005, -2.0, 0.02, 0.5, 0.0];
         let (q, s) = quantize_weights_per_channel(&w, 3, 2);
         assert_eq!(s, vec![2.0 / 127.0, 0.02 / 127.0]);
-        assert_eq!(q, vec![64, -64, -127, 127, 32, 0]);
+        assert_eq!(q, vec![64, -32, -127, 127, 32, 0]);
     }
 
     #[test]
