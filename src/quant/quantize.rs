@@ -191,8 +191,7 @@ fn calibrate_segmenter(
         progress(i + 1, frames);
     }
     let runs = collector.runs();
-    let bytes = std::fs::read(seg.onnx_path()).map_err(|e| Error::io(seg.onnx_path(), e))?;
-    Ok((proto, collector.into_stats(), runs, crate::atomic::sha256_hex(&bytes), Vec::new()))
+    Ok((proto, collector.into_stats(), runs, seg.onnx_sha256().to_string(), Vec::new()))
 }
 
 /// `target` relative to the directory of `from_file` when both are relative or both

@@ -105,11 +105,11 @@ pub fn candidates(graph: &GraphProto) -> Vec<Candidate> {
         if !matches!(node.op_type.as_str(), "MatMul" | "Gemm" | "Conv") {
             continue;
         }
-        let unsupported = match weight_matrix(node, &consts) {
-            Ok(w) => w.map_or_else(|| Some("the weight is not a constant".to_string()), |_| None),
-            Err(why) => Some(why),
+        let (unsupported, n_out) = match weight_matrix(node, &consts) {
+            Ok(Some(w)) => (None, w.n),
+            Ok(None) => (Some("the weight is not a constant".to_string()), 0),
+            Err(why) => (Some(why), 0),
         };
-        let n_out = weight_matrix(node, &consts).ok().flatten().map(|w| w.n).unwrap_or(0);
         let mut chain = Vec::new();
         let mut cur = node.output.first().map(String::as_str).unwrap_or("");
         loop {

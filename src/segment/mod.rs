@@ -71,6 +71,7 @@ pub struct Segmenter {
     input_index: usize,
     slots: OutputSlots,
     report: RewriteReport,
+    sha256: String,
     quantized: Option<ApplyReport>,
     plans: Mutex<HashMap<(usize, usize), Arc<TypedRunnableModel>>>,
 }
@@ -202,6 +203,7 @@ impl Segmenter {
             input_index,
             slots,
             report,
+            sha256,
             quantized,
             plans: Mutex::new(HashMap::new()),
         })
@@ -261,6 +263,11 @@ impl Segmenter {
             .model_for_proto_model(proto)
             .map_err(|e| Error::model(&self.onnx_path, format!("{e:#}")))?;
         self.plan_for(model, width, height)
+    }
+
+    /// sha256 of the graph file as loaded.
+    pub fn onnx_sha256(&self) -> &str {
+        &self.sha256
     }
 
     /// What the int8 rewrite did, when loaded from a quantization profile.
