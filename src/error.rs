@@ -64,6 +64,22 @@ pub enum Error {
     /// Running a model failed.
     #[error("inference failed: {0}")]
     Inference(String),
+    /// A capture device could not be opened, configured or read, or it vanished.
+    #[error("{}: {message}", path.display())]
+    Device {
+        /// The device node, e.g. `/dev/video0`.
+        path: PathBuf,
+        /// What failed (the ioctl or step, and the OS error).
+        message: String,
+    },
+    /// A raw camera buffer could not be decoded.
+    #[error("{format} buffer: {message}")]
+    Decode {
+        /// The pixel format, e.g. "MJPG".
+        format: String,
+        /// What is wrong with the buffer.
+        message: String,
+    },
     /// A caller passed an argument outside its valid range.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
@@ -78,6 +94,16 @@ impl Error {
     /// A model error on `path`.
     pub fn model(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         Error::Model { path: path.into(), message: message.into() }
+    }
+
+    /// A device error on `path`.
+    pub fn device(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Error::Device { path: path.into(), message: message.into() }
+    }
+
+    /// A decode error for a buffer of pixel format `format`.
+    pub fn decode(format: impl Into<String>, message: impl Into<String>) -> Self {
+        Error::Decode { format: format.into(), message: message.into() }
     }
 
     /// A parse error in `path` (optionally at a 1-based `line`).

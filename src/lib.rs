@@ -1,8 +1,10 @@
 //! tricons: category-level 6D object pose estimation on edge boards.
 //!
-//! The modules follow the data: [`frame`] (RGB-D frames and intrinsics) and
-//! [`recording`] (on-disk recordings, NOCS dataset layout) feed the pose
-//! pipeline; [`output`] holds the predictions format every producer emits;
+//! The modules follow the data: [`capture`] (V4L2 cameras, decoding, pairing,
+//! registration, recording replay), [`frame`] (RGB-D frames and intrinsics) and
+//! [`recording`] (on-disk recordings, NOCS dataset layout) feed [`segment`]
+//! (Mask R-CNN) and [`pose`] (TriCons-Pose), which [`pipeline`] runs as a
+//! threaded service; [`output`] holds the predictions format every producer emits;
 //! [`metrics`] scores predictions with the NOCS protocol; [`synth`] renders the
 //! SynthNOCS benchmark. [`geometry`] and [`category`] are shared vocabulary.
 //!
@@ -43,6 +45,7 @@
 #![warn(missing_docs)]
 
 pub mod atomic;
+pub mod capture;
 pub mod category;
 pub mod error;
 pub mod frame;
@@ -51,6 +54,7 @@ pub mod image_io;
 pub mod metrics;
 pub mod ops;
 pub mod output;
+pub mod pipeline;
 pub mod pose;
 pub mod quant;
 pub mod recording;

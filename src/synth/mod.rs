@@ -20,6 +20,7 @@ pub mod shapes;
 use crate::category::Category;
 use crate::error::{Error, Result};
 use crate::frame::{DEPTH_SCALE_MM, Intrinsics, LabelImage, NOCS_MAP_MAX, NocsMap, RgbdFrame};
+use crate::geometry::Pose;
 use crate::recording::annotations::{FrameAnnotations, GtInstance};
 use crate::recording::manifest::Manifest;
 use crate::recording::writer::{RecordingWriter, write_frame_files};
@@ -112,15 +113,9 @@ pub struct SynthFrame {
 /// the same (config, seed, index) gives the same frame on the same binary.
 pub fn render_frame(cfg: &SynthConfig, seed: u64, index: u64) -> SynthFrame {
     let k = cfg.intrinsics;
-    let params = scene::SceneParams {
-        min_objects: cfg.min_objects.max(1),
-        max_objects: cfg.max_objects.clamp(cfg.min_objects.max(1), 255),
-        max_distractors: cfg.max_distractors,
-    };
     let mut attempt = 0;
     loop {
-        let mut rng = Rng::from_words(&[seed, index, attempt, STREAM_SCENE]);
-        let sc = scene::sample_scene(&params, &mut rng);
+        let sc = frame_scene(cfg, seed, index, attempt);
         let gb = raster::render(&sc, &k);
         let n_obj = sc.objects.len();
         let mut visible = vec![0usize; n_obj];
@@ -174,6 +169,49 @@ pub fn render_frame(cfg: &SynthConfig, seed: u64, index: u64) -> SynthFrame {
         let frame = RgbdFrame { color, depth, intrinsics: k, timestamp_s: index as f64 / TIMESTAMP_FPS };
         return SynthFrame { frame, annotations: FrameAnnotations { instances, mask: Some(mask), nocs: Some(nocs) } };
     }
+}
+
+/// The scene of attempt `attempt` of frame `index` (camera frame = colour camera).
+fn frame_scene(cfg: &SynthConfig, seed: u64, index: u64, attempt: u64) -> scene::Scene {
+    let params = scene::SceneParams {
+        min_objects: cfg.min_objects.max(1),
+        max_objects: cfg.max_objects.clamp(cfg.min_objects.max(1), 255),
+        max_distractors: cfg.max_distractors,
+    };
+    let mut rng = Rng::from_words(&[seed, index, attempt, STREAM_SCENE]);
+    scene::sample_scene(&params, &mut rng)
+}
+
+/// Exact depth (metres, 0 where nothing was hit) of frame `index`'s scene as a
+/// second sensor sees it: a camera with intrinsics `sensor` placed at
+/// `sensor_from_color` relative to the colour camera. This is what a depth
+/// sensor beside the colour camera measures before registration; it exists to
+/// test depth-to-colour registration against ground truth.
+pub fn render_sensor_depth(cfg: &SynthConfig, seed: u64, index: u64, sensor: &Intrinsics, sensor_from_color: &Pose) -> Vec<f32> {
+    // The same scene as render_frame: replay its attempts until one has an annotated object.
+    let mut attempt = 0;
+    let mut sc = loop {
+        let sc = frame_scene(cfg, seed, index, attempt);
+        attempt += 1;
+        if attempt >= MAX_SCENE_ATTEMPTS {
+            break sc;
+        }
+        let gb = raster::render(&sc, &cfg.intrinsics);
+        let n_obj = sc.objects.len();
+        let mut visible = vec![0usize; n_obj];
+        for &it in &gb.item {
+            if usize::from(it) < n_obj {
+                visible[usize::from(it)] += 1;
+            }
+        }
+        if visible.iter().any(|&v| v >= cfg.min_visible_px.max(1)) {
+            break sc;
+        }
+    };
+    for item in &mut sc.items {
+        item.camera_from_local = sensor_from_color.compose(&item.camera_from_local);
+    }
+    raster::render(&sc, sensor).depth_m
 }
 
 /// Renders `frames` frames with `seed` and writes them as a tricons recording

@@ -2,12 +2,16 @@
 
 mod bench;
 mod bench_segment;
+mod devices;
 mod eval;
 mod inspect;
 mod progress;
 mod quantize;
+mod record;
 mod replay;
 mod segment;
+mod serve;
+mod source_args;
 mod synth;
 mod validate;
 
@@ -45,6 +49,12 @@ enum Command {
     Quantize(quantize::Args),
     /// Compare a float model and its int8 profile on a recording: metrics, output errors, latency.
     Validate(validate::Args),
+    /// List V4L2 capture devices: formats and frame sizes.
+    Devices(devices::Args),
+    /// The on-device pose service: camera or recording -> masks -> poses -> JSON Lines + HTTP.
+    Serve(serve::Args),
+    /// Record RGB-D frames from a camera (or a recording) into a recording.
+    Record(record::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -59,6 +69,9 @@ fn main() -> std::process::ExitCode {
         Command::Bench(args) => bench::run(args),
         Command::Quantize(args) => quantize::run(args),
         Command::Validate(args) => validate::run(args),
+        Command::Devices(args) => devices::run(args),
+        Command::Serve(args) => serve::run(args),
+        Command::Record(args) => record::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -7,7 +7,8 @@ use anyhow::{Context, Result, bail};
 use tricons::atomic::write_atomic;
 use tricons::metrics::{EvalConfig, IouMode, evaluate_recording};
 use tricons::output::overlay::draw_overlay;
-use tricons::output::predictions::{FramePredictions, PredInstance, write_predictions};
+use tricons::output::predictions::{FramePredictions, write_predictions};
+use tricons::pipeline::stages::{Detection, detections_from_annotations, detections_from_segmenter, estimate_detections};
 use tricons::pose::{PoseEstimator, Skipped};
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;
@@ -20,20 +21,13 @@ pub const DEFAULT_RECORDING: &str = "tests/data/synthnocs-demo";
 pub const DEFAULT_MODEL: &str = "models/tricons-pose.card.json";
 
 /// Where the instance masks come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum MaskSource {
     /// The Mask R-CNN (--segmenter) on the colour image: the full pipeline.
     Model,
     /// The recording's ground-truth instance masks (isolates the pose model).
     Gt,
-}
-
-/// One instance to estimate: class, score, optional 2D box, mask.
-struct Detection {
-    class: tricons::Category,
-    score: f64,
-    box2d: Option<[f64; 4]>,
-    mask: Vec<bool>,
 }
 
 /// Arguments of `tricons replay`.
@@ -107,20 +101,8 @@ pub fn run(args: Args) -> Result<()> {
     for i in 0..rec.len() {
         let frame = rec.read_frame(i)?;
         let detections: Vec<Detection> = match &segmenter {
-            Some(seg) => seg
-                .segment(&frame.color)
-                .with_context(|| format!("segmenting frame {}", rec.frame_id(i)))?
-                .into_iter()
-                .filter_map(|d| {
-                    let class = d.category?;
-                    Some(Detection {
-                        class,
-                        score: d.score as f64,
-                        box2d: Some(d.box_xyxy.map(f64::from)),
-                        mask: d.mask,
-                    })
-                })
-                .collect(),
+            Some(seg) => detections_from_segmenter(seg, &frame.color)
+                .with_context(|| format!("segmenting frame {}", rec.frame_id(i)))?,
             None => {
                 let Some(ann) = rec.read_annotations(i)? else {
                     bail!(
@@ -129,37 +111,18 @@ pub fn run(args: Args) -> Result<()> {
                         rec.describe()
                     );
                 };
-                let Some(masks) = ann.instance_masks() else {
+                let Some(detections) = detections_from_annotations(&ann) else {
                     bail!("frame {} of {} has annotations but no instance mask", rec.frame_id(i), rec.describe());
                 };
-                ann.instances
-                    .iter()
-                    .zip(masks)
-                    .map(|(g, mask)| Detection { class: g.class, score: 1.0, box2d: None, mask })
-                    .collect()
+                detections
             }
         };
-        let refs: Vec<&[bool]> = detections.iter().map(|d| d.mask.as_slice()).collect();
-        let outcomes = estimator.estimate(&frame, &refs, tricons::synth::rng::mix_seed(&[args.seed, i as u64]))?;
-        let mut instances = Vec::new();
-        for (k, (d, o)) in detections.iter().zip(outcomes).enumerate() {
-            match o {
-                Ok(e) => {
-                    estimated += 1;
-                    instances.push(PredInstance {
-                        class: d.class,
-                        score: d.score,
-                        camera_from_object: e.camera_from_object,
-                        size_m: e.size_m,
-                        box2d: d.box2d,
-                        mask: None,
-                    })
-                }
-                Err(why) => {
-                    skipped += 1;
-                    log::debug!("frame {} instance {k}: skipped ({})", rec.frame_id(i), describe(&why));
-                }
-            }
+        let seed = tricons::synth::rng::mix_seed(&[args.seed, i as u64]);
+        let (instances, skips) = estimate_detections(&estimator, &frame, &detections, seed)?;
+        estimated += instances.len();
+        skipped += skips.len();
+        for (k, why) in skips {
+            log::debug!("frame {} instance {k}: skipped ({})", rec.frame_id(i), describe(&why));
         }
         if let Some(dir) = &args.overlays {
             let png = draw_overlay(&frame, &instances)?;

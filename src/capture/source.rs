@@ -1,0 +1,412 @@
+//! Frame sources: what the pipeline ([`crate::pipeline`]) and `tricons record` read.
+//!
+//! A [`FrameSource`] yields registered RGB-D frames one at a time. Two are
+//! built in: [`RecordingSource`] replays a recording (at its recorded rate or
+//! as fast as the reader goes, optionally in a loop), and `CameraSource`
+//! (feature `v4l`) reads a colour and a depth V4L2 node, pairs and registers.
+
+use super::registration::CameraConfig;
+use crate::error::{Error, Result};
+use crate::frame::RgbdFrame;
+use crate::recording::{FrameAnnotations, Recording, TriconsRecording, open_recording};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// One frame from a source.
+#[derive(Clone, Debug)]
+pub struct SourceFrame {
+    /// Position in the stream: 0, 1, 2, ... (continues across reopens and loops).
+    pub seq: u64,
+    /// The frame's id: the recording's frame id, or the zero-padded `seq` for cameras.
+    pub id: String,
+    /// Colour and registered depth with the colour camera's intrinsics.
+    pub frame: RgbdFrame,
+    /// Ground truth, when the source has it and was asked for it.
+    pub annotations: Option<FrameAnnotations>,
+    /// When the source handed the frame over (for end-to-end latency).
+    pub captured_at: Instant,
+}
+
+/// A stream of registered RGB-D frames.
+pub trait FrameSource: Send {
+    /// One line saying what this is (devices or recording, formats, rate).
+    fn describe(&self) -> String;
+    /// The camera calibration frames are registered with.
+    fn camera(&self) -> CameraConfig;
+    /// Blocks until the next frame; `Ok(None)` at the end of the stream. After
+    /// an error the source must be [`reopen`](Self::reopen)ed before it is read again.
+    fn next_frame(&mut self) -> Result<Option<SourceFrame>>;
+    /// Reopens the source after an error (a device that vanished, an
+    /// unreadable file); reading goes on after the frame that failed.
+    fn reopen(&mut self) -> Result<()>;
+    /// Whether frames come in real time whether or not they are consumed (a
+    /// camera, a paced replay). The pipeline drops the oldest unprocessed frame
+    /// of a live source when inference falls behind; a source that is not live
+    /// is read only as fast as inference goes, and nothing is dropped.
+    fn is_live(&self) -> bool;
+}
+
+/// How a recording is replayed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Pace {
+    /// At the recorded timestamps, times a speed factor (1 = real time).
+    Recorded {
+        /// Playback speed (2 = twice as fast).
+        speed: f64,
+    },
+    /// As fast as the consumer reads (not live: nothing is dropped).
+    Max,
+}
+
+/// Replays a recording as a [`FrameSource`].
+pub struct RecordingSource {
+    path: PathBuf,
+    recording: Box<dyn Recording>,
+    camera: CameraConfig,
+    pace: Pace,
+    loops: Option<u64>,
+    with_annotations: bool,
+    /// Index of the next frame in the recording, and how many full passes are done.
+    next_index: usize,
+    pass: u64,
+    seq: u64,
+    /// Wall-clock start and recorded time of the first frame of the current pass.
+    clock: Option<(Instant, f64)>,
+    /// Recorded time offset of the current pass (so timestamps keep increasing in loops).
+    pass_offset_s: f64,
+    failed: bool,
+}
+
+impl RecordingSource {
+    /// Opens the recording at `path` (tricons format or NOCS layout), played
+    /// once at `pace`.
+    pub fn open(path: &Path, pace: Pace) -> Result<RecordingSource> {
+        if let Pace::Recorded { speed } = pace
+            && !(speed.is_finite() && speed > 0.0)
+        {
+            return Err(Error::InvalidArgument(format!("replay speed {speed} must be positive")));
+        }
+        let recording = open_recording(path)?;
+        if recording.is_empty() {
+            return Err(Error::parse(path, None, "the recording has no frames"));
+        }
+        let camera = recording_camera(path, recording.as_ref());
+        Ok(RecordingSource {
+            path: path.to_path_buf(),
+            recording,
+            camera,
+            pace,
+            loops: Some(1),
+            with_annotations: false,
+            next_index: 0,
+            pass: 0,
+            seq: 0,
+            clock: None,
+            pass_offset_s: 0.0,
+            failed: false,
+        })
+    }
+
+    /// Plays the recording `loops` times (`None`: forever).
+    pub fn looped(mut self, loops: Option<u64>) -> RecordingSource {
+        self.loops = loops;
+        self
+    }
+
+    /// Also reads each frame's ground truth (for ground-truth masks).
+    pub fn with_annotations(mut self, yes: bool) -> RecordingSource {
+        self.with_annotations = yes;
+        self
+    }
+
+    /// Number of frames in one pass.
+    pub fn len(&self) -> usize {
+        self.recording.len()
+    }
+
+    /// Whether the recording is empty (never: [`open`](Self::open) refuses that).
+    pub fn is_empty(&self) -> bool {
+        self.recording.is_empty()
+    }
+
+}
+
+/// The camera config of a recording: from its manifest where it has one.
+fn recording_camera(path: &Path, recording: &dyn Recording) -> CameraConfig {
+    match TriconsRecording::open(path) {
+        Ok(rec) => {
+            let m = rec.manifest();
+            let mut config = CameraConfig::registered(m.intrinsics, m.depth_scale_m);
+            if let (Some(depth), Some(color_from_depth)) = (m.depth_intrinsics, m.color_from_depth) {
+                config.depth = depth;
+                config.color_from_depth = color_from_depth;
+            }
+            config
+        }
+        Err(_) => CameraConfig::registered(recording.intrinsics(), crate::frame::DEPTH_SCALE_MM),
+    }
+}
+
+impl FrameSource for RecordingSource {
+    fn describe(&self) -> String {
+        let pace = match self.pace {
+            Pace::Recorded { speed } if speed == 1.0 => "at the recorded rate".to_string(),
+            Pace::Recorded { speed } => format!("at {speed}x the recorded rate"),
+            Pace::Max => "as fast as inference goes".to_string(),
+        };
+        let loops = match self.loops {
+            Some(1) => String::new(),
+            Some(n) => format!(", {n} passes"),
+            None => ", looping".to_string(),
+        };
+        format!("{} {pace}{loops}", self.recording.describe())
+    }
+
+    fn camera(&self) -> CameraConfig {
+        self.camera.clone()
+    }
+
+    fn next_frame(&mut self) -> Result<Option<SourceFrame>> {
+        if self.failed {
+            return Err(Error::InvalidArgument(format!("{}: read after an error without reopen", self.path.display())));
+        }
+        if self.next_index >= self.recording.len() {
+            self.pass += 1;
+            if self.loops.is_some_and(|n| self.pass >= n) {
+                return Ok(None);
+            }
+            // The next pass continues one frame period after the last frame.
+            let n = self.recording.len();
+            let last = self.recording.read_frame(n - 1).map(|f| f.timestamp_s).unwrap_or(0.0);
+            let first = self.recording.read_frame(0).map(|f| f.timestamp_s).unwrap_or(0.0);
+            let period = if n > 1 { (last - first) / (n - 1) as f64 } else { 1.0 / 30.0 };
+            self.pass_offset_s += last - first + period;
+            self.next_index = 0;
+        }
+        let index = self.next_index;
+        self.next_index += 1;
+        let read = self.recording.read_frame(index).and_then(|f| {
+            let ann = if self.with_annotations { self.recording.read_annotations(index)? } else { None };
+            Ok((f, ann))
+        });
+        let (mut frame, annotations) = match read {
+            Ok(x) => x,
+            Err(e) => {
+                self.failed = true;
+                return Err(e);
+            }
+        };
+        let t_s = self.pass_offset_s + frame.timestamp_s;
+        if let Pace::Recorded { speed } = self.pace {
+            let (start, t0) = *self.clock.get_or_insert((Instant::now(), t_s));
+            let due = start + Duration::from_secs_f64(((t_s - t0) / speed).max(0.0));
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+        }
+        frame.timestamp_s = t_s;
+        let seq = self.seq;
+        self.seq += 1;
+        Ok(Some(SourceFrame {
+            seq,
+            id: self.recording.frame_id(index).to_string(),
+            frame,
+            annotations,
+            captured_at: Instant::now(),
+        }))
+    }
+
+    fn reopen(&mut self) -> Result<()> {
+        self.recording = open_recording(&self.path)?;
+        if self.next_index > self.recording.len() {
+            self.next_index = self.recording.len();
+        }
+        self.failed = false;
+        Ok(())
+    }
+
+    fn is_live(&self) -> bool {
+        matches!(self.pace, Pace::Recorded { .. })
+    }
+}
+
+#[cfg(all(feature = "v4l", target_os = "linux"))]
+pub use camera::{CameraSettings, CameraSource};
+
+#[cfg(all(feature = "v4l", target_os = "linux"))]
+mod camera {
+    use super::{FrameSource, SourceFrame};
+    use crate::capture::decode::{PixelFormat, decode_color, decode_depth_z16};
+    use crate::capture::pairing::{FramePairer, PairingStats, Timed};
+    use crate::capture::registration::{CameraConfig, register_depth};
+    use crate::capture::v4l2::{RawBuffer, V4l2Stream};
+    use crate::error::{Error, Result};
+    use crate::frame::RgbdFrame;
+    use std::path::PathBuf;
+    use std::time::{Duration, Instant};
+
+    /// Buffers requested from each V4L2 node.
+    pub const CAPTURE_BUFFERS: u32 = 4;
+    /// How long one node is polled before the other gets its turn.
+    const POLL_SLICE: Duration = Duration::from_millis(2);
+
+    /// Which nodes to open and how.
+    #[derive(Clone, Debug)]
+    pub struct CameraSettings {
+        /// Colour node, e.g. `/dev/video4`.
+        pub color_device: PathBuf,
+        /// Colour pixel format (YUYV, MJPG or RGB3).
+        pub color_format: PixelFormat,
+        /// Depth node (Z16), e.g. `/dev/video0`.
+        pub depth_device: PathBuf,
+        /// Frame rate asked of both nodes.
+        pub fps: Option<u32>,
+        /// Calibration: image sizes, intrinsics, extrinsics, depth unit.
+        pub camera: CameraConfig,
+        /// Pairing tolerance, seconds.
+        pub pair_tolerance_s: f64,
+        /// No frame pair for this long counts as a lost device.
+        pub stall_timeout: Duration,
+    }
+
+    /// Live RGB-D frames from two V4L2 nodes: paired by timestamp, decoded,
+    /// depth registered to colour.
+    pub struct CameraSource {
+        settings: CameraSettings,
+        streams: Option<(V4l2Stream, V4l2Stream)>,
+        pairer: FramePairer<RawBuffer, RawBuffer>,
+        seq: u64,
+    }
+
+    impl CameraSource {
+        /// Opens both nodes and starts streaming.
+        pub fn open(settings: CameraSettings) -> Result<CameraSource> {
+            if settings.color_format.is_depth() {
+                return Err(Error::InvalidArgument(format!(
+                    "colour format {} is a depth format",
+                    settings.color_format
+                )));
+            }
+            settings.camera.validate().map_err(Error::InvalidArgument)?;
+            let mut source = CameraSource {
+                pairer: FramePairer::new(settings.pair_tolerance_s, super::super::pairing::DEFAULT_PAIR_QUEUE),
+                settings,
+                streams: None,
+                seq: 0,
+            };
+            source.reopen()?;
+            Ok(source)
+        }
+
+        /// Pairing counts so far (frames each node delivered without a partner).
+        pub fn pairing_stats(&self) -> PairingStats {
+            self.pairer.stats()
+        }
+
+        fn decode(&self, color: &RawBuffer, depth: &RawBuffer, streams: &(V4l2Stream, V4l2Stream)) -> Result<RgbdFrame> {
+            let (cf, cw, ch, cbpl) = streams.0.format();
+            let (_, dw, dh, dbpl) = streams.1.format();
+            let image = decode_color(cf, &color.data, cw, ch, cbpl)?;
+            let raw = decode_depth_z16(&depth.data, dw, dh, dbpl)?;
+            let depth = register_depth(&raw, &self.settings.camera)?;
+            Ok(RgbdFrame { color: image, depth, intrinsics: self.settings.camera.color, timestamp_s: color.timestamp_s })
+        }
+    }
+
+    impl FrameSource for CameraSource {
+        fn describe(&self) -> String {
+            let s = &self.settings;
+            format!(
+                "camera: colour {} ({} {}x{}), depth {} (Z16 {}x{})",
+                s.color_device.display(),
+                s.color_format,
+                s.camera.color.width,
+                s.camera.color.height,
+                s.depth_device.display(),
+                s.camera.depth.width,
+                s.camera.depth.height
+            )
+        }
+
+        fn camera(&self) -> CameraConfig {
+            self.settings.camera.clone()
+        }
+
+        fn next_frame(&mut self) -> Result<Option<SourceFrame>> {
+            if self.streams.is_none() {
+                return Err(Error::device(&self.settings.color_device, "not open (reopen after an error)"));
+            }
+            let started = Instant::now();
+            loop {
+                if let Some(pair) = self.pairer.pop_pair() {
+                    let streams = self.streams.as_ref().ok_or_else(|| {
+                        Error::device(&self.settings.color_device, "not open (reopen after an error)")
+                    })?;
+                    let frame = self.decode(&pair.color.value, &pair.depth.value, streams)?;
+                    let seq = self.seq;
+                    self.seq += 1;
+                    return Ok(Some(SourceFrame {
+                        seq,
+                        id: format!("{seq:06}"),
+                        frame,
+                        annotations: None,
+                        captured_at: Instant::now(),
+                    }));
+                }
+                if started.elapsed() > self.settings.stall_timeout {
+                    self.streams = None;
+                    return Err(Error::device(
+                        &self.settings.color_device,
+                        format!("no colour/depth pair for {:.1} s", self.settings.stall_timeout.as_secs_f64()),
+                    ));
+                }
+                let Some(streams) = self.streams.as_mut() else {
+                    return Err(Error::device(&self.settings.color_device, "not open (reopen after an error)"));
+                };
+                let pairer = &mut self.pairer;
+                let result = (|| -> Result<()> {
+                    if let Some(b) = streams.0.next_buffer(POLL_SLICE)? {
+                        pairer.push_color(Timed { timestamp_s: b.timestamp_s, value: b });
+                    }
+                    if let Some(b) = streams.1.next_buffer(POLL_SLICE)? {
+                        pairer.push_depth(Timed { timestamp_s: b.timestamp_s, value: b });
+                    }
+                    Ok(())
+                })();
+                if let Err(e) = result {
+                    self.streams = None;
+                    return Err(e);
+                }
+            }
+        }
+
+        fn reopen(&mut self) -> Result<()> {
+            self.streams = None;
+            self.pairer.clear();
+            let s = &self.settings;
+            let color = V4l2Stream::open(
+                &s.color_device,
+                s.color_format,
+                s.camera.color.width,
+                s.camera.color.height,
+                s.fps,
+                CAPTURE_BUFFERS,
+            )?;
+            let depth = V4l2Stream::open(
+                &s.depth_device,
+                PixelFormat::Z16,
+                s.camera.depth.width,
+                s.camera.depth.height,
+                s.fps,
+                CAPTURE_BUFFERS,
+            )?;
+            self.streams = Some((color, depth));
+            Ok(())
+        }
+
+        fn is_live(&self) -> bool {
+            true
+        }
+    }
+}

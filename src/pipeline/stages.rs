@@ -1,0 +1,133 @@
+//! The two inference stages and their built-in implementations.
+//!
+//! [`Segment`] turns a frame into instance masks (Mask R-CNN, or the
+//! recording's ground truth); [`Estimate`] turns masks into poses (the
+//! TriCons-Pose network). `tricons replay` and `tricons serve` share them.
+
+use crate::capture::SourceFrame;
+use crate::category::Category;
+use crate::error::{Error, Result};
+use crate::frame::ColorImage;
+use crate::recording::FrameAnnotations;
+use crate::output::PredInstance;
+use crate::pose::{PoseEstimator, Skipped};
+use crate::segment::Segmenter;
+
+/// One instance to estimate: category, score, optional 2D box and full-image mask.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Detection {
+    /// NOCS category.
+    pub class: Category,
+    /// Detection confidence in [0, 1].
+    pub score: f64,
+    /// Box `[x0, y0, x1, y1]` in pixels, when the segmenter gives one.
+    pub box2d: Option<[f64; 4]>,
+    /// Row-major mask of the colour image's size.
+    pub mask: Vec<bool>,
+}
+
+/// The masks stage.
+pub trait Segment: Send {
+    /// The frame's instances.
+    fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>>;
+}
+
+/// The pose stage.
+pub trait Estimate: Send {
+    /// Poses of the frame's detections; a detection that cannot be estimated
+    /// (too few depth pixels) is left out.
+    fn estimate(&mut self, frame: &SourceFrame, detections: &[Detection]) -> Result<Vec<PredInstance>>;
+}
+
+/// Detections from a Mask R-CNN: instances of a NOCS category only.
+pub fn detections_from_segmenter(segmenter: &Segmenter, image: &ColorImage) -> Result<Vec<Detection>> {
+    Ok(segmenter
+        .segment(image)?
+        .into_iter()
+        .filter_map(|d| {
+            Some(Detection {
+                class: d.category?,
+                score: f64::from(d.score),
+                box2d: Some(d.box_xyxy.map(f64::from)),
+                mask: d.mask,
+            })
+        })
+        .collect())
+}
+
+impl Segment for Segmenter {
+    fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
+        detections_from_segmenter(self, &frame.frame.color)
+    }
+}
+
+/// Ground-truth instance masks (score 1) from the source's annotations.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct GroundTruthMasks;
+
+impl Segment for GroundTruthMasks {
+    fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
+        let missing = |what: &str| {
+            Error::InvalidArgument(format!("frame {}: {what} (ground-truth masks need an annotated recording)", frame.id))
+        };
+        let ann = frame.annotations.as_ref().ok_or_else(|| missing("no annotations"))?;
+        detections_from_annotations(ann).ok_or_else(|| missing("annotations without an instance mask"))
+    }
+}
+
+/// Ground-truth detections (score 1) of an annotated frame; `None` without an instance mask.
+pub fn detections_from_annotations(ann: &FrameAnnotations) -> Option<Vec<Detection>> {
+    let masks = ann.instance_masks()?;
+    Some(ann.instances.iter().zip(masks).map(|(g, mask)| Detection { class: g.class, score: 1.0, box2d: None, mask }).collect())
+}
+
+/// The pose network as a stage; frame `seq` samples its points from `(seed, seq)`.
+pub struct PoseStage {
+    estimator: PoseEstimator,
+    seed: u64,
+}
+
+impl PoseStage {
+    /// Wraps a loaded estimator.
+    pub fn new(estimator: PoseEstimator, seed: u64) -> PoseStage {
+        PoseStage { estimator, seed }
+    }
+}
+
+/// Poses of `detections` in `frame` with the point sampling seeded by `seed`;
+/// also returns each skipped instance's index and reason.
+pub fn estimate_detections(
+    estimator: &PoseEstimator,
+    frame: &crate::frame::RgbdFrame,
+    detections: &[Detection],
+    seed: u64,
+) -> Result<(Vec<PredInstance>, Vec<(usize, Skipped)>)> {
+    let masks: Vec<&[bool]> = detections.iter().map(|d| d.mask.as_slice()).collect();
+    let outcomes = estimator.estimate(frame, &masks, seed)?;
+    let (mut instances, mut skipped) = (Vec::new(), Vec::new());
+    for (k, (d, o)) in detections.iter().zip(outcomes).enumerate() {
+        match o {
+            Ok(e) => instances.push(PredInstance {
+                class: d.class,
+                score: d.score,
+                camera_from_object: e.camera_from_object,
+                size_m: e.size_m,
+                box2d: d.box2d,
+                mask: None,
+            }),
+            Err(why) => skipped.push((k, why)),
+        }
+    }
+    Ok((instances, skipped))
+}
+
+impl Estimate for PoseStage {
+    fn estimate(&mut self, frame: &SourceFrame, detections: &[Detection]) -> Result<Vec<PredInstance>> {
+        let seed = crate::synth::rng::mix_seed(&[self.seed, frame.seq]);
+        let (instances, skipped) = estimate_detections(&self.estimator, &frame.frame, detections, seed)?;
+        for (k, why) in skipped {
+            log::debug!("frame {} instance {k}: skipped ({why:?})", frame.id);
+        }
+        Ok(instances)
+    }
+}
