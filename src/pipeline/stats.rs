@@ -12,6 +12,26 @@ pub const LATENCY_WINDOW: usize = 4096;
 /// The window of the recent frame rate.
 pub const RECENT_FPS_WINDOW: Duration = Duration::from_secs(5);
 
+/// Frames published before the warm memory baseline is taken.
+pub const WARMUP_FRAMES: u64 = 100;
+
+/// (resident, peak resident) memory of this process in KiB, from
+/// `/proc/self/status`; zeros where that file does not exist.
+pub fn memory_kib() -> (u64, u64) {
+    let Ok(status) = std::fs::read_to_string("/proc/self/status") else {
+        return (0, 0);
+    };
+    let field = |name: &str| -> u64 {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|rest| rest.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    };
+    (field("VmRSS:"), field("VmHWM:"))
+}
+
 /// The stages whose latency is measured, in pipeline order.
 pub const STAGES: [&str; 5] = ["capture", "segment", "pose", "publish", "end_to_end"];
 
@@ -107,6 +127,13 @@ pub struct StatsSnapshot {
     pub source_reopens: u64,
     /// Result lines not delivered to slow stream clients.
     pub stream_lines_dropped: u64,
+    /// Resident memory now, KiB (Linux; 0 elsewhere).
+    pub rss_kib: u64,
+    /// Peak resident memory of the process, KiB (Linux; 0 elsewhere).
+    pub peak_rss_kib: u64,
+    /// Resident memory after the first [`WARMUP_FRAMES`] frames were published, KiB
+    /// (the baseline of the soak benchmark's growth figure; 0 before).
+    pub warm_rss_kib: u64,
     /// Per-stage latency, in [`STAGES`] order.
     pub latency: Vec<(String, LatencySummary)>,
     /// The queues between stages.
@@ -158,6 +185,7 @@ pub struct PipelineStats {
     pub source_reopens: AtomicU64,
     /// Lines not delivered to slow stream clients.
     pub stream_lines_dropped: AtomicU64,
+    warm_rss_kib: AtomicU64,
     queues: Mutex<Vec<(String, std::sync::Arc<dyn QueueProbe>)>>,
 }
 
@@ -181,6 +209,7 @@ impl PipelineStats {
             source_errors: AtomicU64::new(0),
             source_reopens: AtomicU64::new(0),
             stream_lines_dropped: AtomicU64::new(0),
+            warm_rss_kib: AtomicU64::new(0),
             queues: Mutex::new(Vec::new()),
         }
     }
@@ -205,7 +234,9 @@ impl PipelineStats {
 
     /// Counts a published frame (for the frame rates).
     pub fn published(&self) {
-        self.frames_published.fetch_add(1, Ordering::Relaxed);
+        if self.frames_published.fetch_add(1, Ordering::Relaxed) + 1 == WARMUP_FRAMES {
+            self.warm_rss_kib.store(memory_kib().0, Ordering::Relaxed);
+        }
         let now = Instant::now();
         let mut at = self.published_at.lock().unwrap_or_else(|p| p.into_inner());
         at.push_back(now);
@@ -254,6 +285,7 @@ impl PipelineStats {
             })
             .collect();
         let published = self.frames_published.load(Ordering::Relaxed);
+        let (rss_kib, peak_rss_kib) = memory_kib();
         let recent = {
             let at = self.published_at.lock().unwrap_or_else(|p| p.into_inner());
             let window = uptime_s.min(RECENT_FPS_WINDOW.as_secs_f64());
@@ -275,6 +307,9 @@ impl PipelineStats {
             source_errors: self.source_errors.load(Ordering::Relaxed),
             source_reopens: self.source_reopens.load(Ordering::Relaxed),
             stream_lines_dropped: self.stream_lines_dropped.load(Ordering::Relaxed),
+            rss_kib,
+            peak_rss_kib,
+            warm_rss_kib: self.warm_rss_kib.load(Ordering::Relaxed),
             latency,
             queues,
         }
@@ -313,6 +348,7 @@ impl StatsSnapshot {
         ] {
             metric(name, help, "counter", vec![(String::new(), v as f64)]);
         }
+        metric("resident_memory_bytes", "Resident memory.", "gauge", vec![(String::new(), self.rss_kib as f64 * 1024.0)]);
         metric("fps", "Published frames per second over the last five seconds.", "gauge", vec![(String::new(), self.fps_recent)]);
         let lat = |q: &str, f: fn(&LatencySummary) -> f64| -> Vec<(String, f64)> {
             self.latency.iter().map(|(st, l)| (format!("{{stage=\"{st}\",quantile=\"{q}\"}}"), f(l))).collect()

@@ -13,18 +13,22 @@ pub fn repo(path: &str) -> String {
 /// /usr/aarch64-linux-gnu`, set by cross/check.sh) prefixes it where the host
 /// cannot execute it directly.
 pub fn tricons(args: &[&str]) -> Output {
+    command().args(args).env("RUST_LOG", "warn").output().unwrap()
+}
+
+/// The binary as a command, behind `TRICONS_TEST_RUNNER` when set.
+fn command() -> Command {
     let exe = env!("CARGO_BIN_EXE_tricons");
     let runner = std::env::var("TRICONS_TEST_RUNNER").unwrap_or_default();
     let mut parts = runner.split_whitespace();
-    let mut cmd = match parts.next() {
+    match parts.next() {
         Some(program) => {
             let mut c = Command::new(program);
             c.args(parts).arg(exe);
             c
         }
         None => Command::new(exe),
-    };
-    cmd.args(args).env("RUST_LOG", "warn").output().unwrap()
+    }
 }
 
 pub fn stderr(o: &Output) -> String {
@@ -71,4 +75,30 @@ pub fn demo_subset(dir: &Path, frames: usize, annotations: bool) -> std::path::P
     }
     fs::write(rec.join("manifest.json"), serde_json::to_string(&manifest).unwrap()).unwrap();
     rec
+}
+
+/// Starts the binary with piped stdout/stderr and `RUST_LOG=info` (for tests that signal it).
+pub fn spawn_tricons(args: &[&str]) -> std::process::Child {
+    command()
+        .args(args)
+        .env("RUST_LOG", "info")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Sends `signal` (e.g. "TERM", "INT") to a child process.
+pub fn signal(child: &std::process::Child, signal: &str) {
+    let status = Command::new("kill").arg(format!("-{signal}")).arg(child.id().to_string()).status().unwrap();
+    assert!(status.success(), "kill -{signal} failed");
+}
+
+/// Waits until `ready()` holds, polling; panics after `timeout`.
+pub fn wait_for(what: &str, timeout: std::time::Duration, mut ready: impl FnMut() -> bool) {
+    let start = std::time::Instant::now();
+    while !ready() {
+        assert!(start.elapsed() < timeout, "timed out waiting for {what}");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
 }

@@ -54,6 +54,7 @@ pub struct Args {
     seed: Option<u64>,
     /// Write results here as JSON Lines, appending ('-' = stdout; repeatable) [default: -].
     #[arg(long, value_name = "PATH")]
+    #[serde(default)]
     out: Vec<PathBuf>,
     /// HTTP endpoint address (/health /metrics /latest /stream); loopback unless told otherwise.
     #[arg(long, value_name = "ADDR")]
@@ -186,7 +187,7 @@ pub fn run(args: Args) -> Result<()> {
 fn stats_line(s: &StatsSnapshot) -> String {
     let lat = |name: &str| s.latency.iter().find(|(n, _)| n == name).map(|(_, l)| l.p50_ms).unwrap_or(0.0);
     format!(
-        "{} captured, {} published, {} dropped, {} failed, {:.2} fps (recent {:.2}); p50 ms: segment {:.1}, pose {:.1}, end-to-end {:.1}; source errors {}, reopens {}",
+        "{} captured, {} published, {} dropped, {} failed, {:.2} fps (recent {:.2}); p50 ms: segment {:.1}, pose {:.1}, end-to-end {:.1}; source errors {}, reopens {}; rss {:.1} MiB (peak {:.1})",
         s.frames_captured,
         s.frames_published,
         s.frames_dropped,
@@ -197,6 +198,8 @@ fn stats_line(s: &StatsSnapshot) -> String {
         lat("pose"),
         lat("end_to_end"),
         s.source_errors,
-        s.source_reopens
+        s.source_reopens,
+        s.rss_kib as f64 / 1024.0,
+        s.peak_rss_kib as f64 / 1024.0
     )
 }
