@@ -64,11 +64,16 @@ fn agreement(truth: &[u16], registered: &[u16], width: usize) -> (f64, f64) {
                 covered += 1;
                 // 3 mm, plus the surface's own depth change per colour pixel (a depth
                 // pixel covers ~1.6 colour pixels here, all given its one depth).
-                let local_step = [truth[v * width + u + 1], truth[v * width + u - 1], truth[(v + 1) * width + u], truth[(v - 1) * width + u]]
-                    .iter()
-                    .map(|n| n.abs_diff(z))
-                    .max()
-                    .unwrap_or(0);
+                let local_step = [
+                    truth[v * width + u + 1],
+                    truth[v * width + u - 1],
+                    truth[(v + 1) * width + u],
+                    truth[(v - 1) * width + u],
+                ]
+                .iter()
+                .map(|n| n.abs_diff(z))
+                .max()
+                .unwrap_or(0);
                 close += usize::from(r.abs_diff(z) <= 3 + local_step);
             }
         }

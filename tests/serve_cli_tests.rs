@@ -119,7 +119,7 @@ fn sigterm_drains_flushes_and_exits_zero() {
 fn record_stops_on_sigint_with_every_completed_frame_on_disk() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rec");
-    let mut child = spawn_tricons(&[
+    let child = spawn_tricons(&[
         "record",
         "--recording",
         &repo("tests/data/synthnocs-demo"),
@@ -178,11 +178,30 @@ fn serve_and_record_reject_bad_sources_clearly() {
     let camera = dir.path().join("camera.json");
     std::fs::write(&camera, "{\"format\": \"tricons-camera\", \"version\": 1, \"color\": 3}").unwrap();
     let cam = camera.to_str().unwrap();
-    let o = tricons(&["serve", "--color", "/dev/video-none", "--depth", "/dev/video-none2", "--camera", cam, "--no-listen"]);
+    let o = tricons(&[
+        "serve",
+        "--color",
+        "/dev/video-none",
+        "--depth",
+        "/dev/video-none2",
+        "--camera",
+        cam,
+        "--no-listen",
+    ]);
     if cfg!(all(feature = "v4l", target_os = "linux")) {
         assert_clean_failure(&o, "camera.json");
         let example = repo("docs/deploy/camera.example.json");
-        let o = tricons(&["record", "--color", "/dev/video-none", "--depth", "/dev/video-none2", "--camera", &example, "--out", dir.path().join("r").to_str().unwrap()]);
+        let o = tricons(&[
+            "record",
+            "--color",
+            "/dev/video-none",
+            "--depth",
+            "/dev/video-none2",
+            "--camera",
+            &example,
+            "--out",
+            dir.path().join("r").to_str().unwrap(),
+        ]);
         assert_clean_failure(&o, "/dev/video-none");
     } else {
         assert_clean_failure(&o, "feature `v4l`");

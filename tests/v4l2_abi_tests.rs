@@ -53,97 +53,124 @@ fn layouts() -> Vec<Layout> {
         };
     }
     vec![
-        layout!(v4l2_capability, [
-            field!(v4l2_capability, "driver", [u8; 16], driver),
-            field!(v4l2_capability, "card", [u8; 32], card),
-            field!(v4l2_capability, "bus_info", [u8; 32], bus_info),
-            field!(v4l2_capability, "version", u32, version),
-            field!(v4l2_capability, "capabilities", u32, capabilities),
-            field!(v4l2_capability, "device_caps", u32, device_caps),
-            field!(v4l2_capability, "reserved", [u32; 3], reserved),
-        ]),
-        layout!(v4l2_fmtdesc, [
-            field!(v4l2_fmtdesc, "index", u32, index),
-            field!(v4l2_fmtdesc, "type", u32, type_),
-            field!(v4l2_fmtdesc, "flags", u32, flags),
-            field!(v4l2_fmtdesc, "description", [u8; 32], description),
-            field!(v4l2_fmtdesc, "pixelformat", u32, pixelformat),
-            field!(v4l2_fmtdesc, "mbus_code", u32, mbus_code),
-            field!(v4l2_fmtdesc, "reserved", [u32; 3], reserved),
-        ]),
-        layout!(v4l2_frmsizeenum, [
-            field!(v4l2_frmsizeenum, "index", u32, index),
-            field!(v4l2_frmsizeenum, "pixel_format", u32, pixel_format),
-            field!(v4l2_frmsizeenum, "type", u32, type_),
-            field!(v4l2_frmsizeenum, "discrete", v4l2_frmsize_discrete, size.discrete),
-            field!(v4l2_frmsizeenum, "stepwise", v4l2_frmsize_stepwise, size.stepwise),
-            field!(v4l2_frmsizeenum, "reserved", [u32; 2], reserved),
-        ]),
-        layout!(v4l2_frmsize_stepwise, [
-            field!(v4l2_frmsize_stepwise, "min_width", u32, min_width),
-            field!(v4l2_frmsize_stepwise, "max_width", u32, max_width),
-            field!(v4l2_frmsize_stepwise, "step_width", u32, step_width),
-            field!(v4l2_frmsize_stepwise, "min_height", u32, min_height),
-            field!(v4l2_frmsize_stepwise, "max_height", u32, max_height),
-            field!(v4l2_frmsize_stepwise, "step_height", u32, step_height),
-        ]),
-        layout!(v4l2_pix_format, [
-            field!(v4l2_pix_format, "width", u32, width),
-            field!(v4l2_pix_format, "height", u32, height),
-            field!(v4l2_pix_format, "pixelformat", u32, pixelformat),
-            field!(v4l2_pix_format, "field", u32, field),
-            field!(v4l2_pix_format, "bytesperline", u32, bytesperline),
-            field!(v4l2_pix_format, "sizeimage", u32, sizeimage),
-            field!(v4l2_pix_format, "colorspace", u32, colorspace),
-            field!(v4l2_pix_format, "priv", u32, priv_),
-            field!(v4l2_pix_format, "flags", u32, flags),
-            field!(v4l2_pix_format, "ycbcr_enc", u32, ycbcr_enc),
-            field!(v4l2_pix_format, "quantization", u32, quantization),
-            field!(v4l2_pix_format, "xfer_func", u32, xfer_func),
-        ]),
-        layout!(v4l2_format, [
-            field!(v4l2_format, "type", u32, type_),
-            field!(v4l2_format, "fmt", v4l2_format_fmt, fmt),
-        ]),
-        layout!(v4l2_requestbuffers, [
-            field!(v4l2_requestbuffers, "count", u32, count),
-            field!(v4l2_requestbuffers, "type", u32, type_),
-            field!(v4l2_requestbuffers, "memory", u32, memory),
-            field!(v4l2_requestbuffers, "capabilities", u32, capabilities),
-        ]),
-        layout!(v4l2_timecode, [
-            field!(v4l2_timecode, "type", u32, type_),
-            field!(v4l2_timecode, "flags", u32, flags),
-            field!(v4l2_timecode, "frames", u8, frames),
-            field!(v4l2_timecode, "userbits", [u8; 4], userbits),
-        ]),
-        layout!(v4l2_buffer, [
-            field!(v4l2_buffer, "index", u32, index),
-            field!(v4l2_buffer, "type", u32, type_),
-            field!(v4l2_buffer, "bytesused", u32, bytesused),
-            field!(v4l2_buffer, "flags", u32, flags),
-            field!(v4l2_buffer, "field", u32, field),
-            field!(v4l2_buffer, "timestamp", libc::timeval, timestamp),
-            field!(v4l2_buffer, "timecode", v4l2_timecode, timecode),
-            field!(v4l2_buffer, "sequence", u32, sequence),
-            field!(v4l2_buffer, "memory", u32, memory),
-            field!(v4l2_buffer, "m", v4l2_buffer_m, m),
-            field!(v4l2_buffer, "length", u32, length),
-            field!(v4l2_buffer, "reserved2", u32, reserved2),
-            field!(v4l2_buffer, "request_fd", i32, request_fd),
-        ]),
-        layout!(v4l2_captureparm, [
-            field!(v4l2_captureparm, "capability", u32, capability),
-            field!(v4l2_captureparm, "capturemode", u32, capturemode),
-            field!(v4l2_captureparm, "timeperframe", v4l2_fract, timeperframe),
-            field!(v4l2_captureparm, "extendedmode", u32, extendedmode),
-            field!(v4l2_captureparm, "readbuffers", u32, readbuffers),
-            field!(v4l2_captureparm, "reserved", [u32; 4], reserved),
-        ]),
-        layout!(v4l2_streamparm, [
-            field!(v4l2_streamparm, "type", u32, type_),
-            field!(v4l2_streamparm, "parm", v4l2_streamparm_parm, parm),
-        ]),
+        layout!(
+            v4l2_capability,
+            [
+                field!(v4l2_capability, "driver", [u8; 16], driver),
+                field!(v4l2_capability, "card", [u8; 32], card),
+                field!(v4l2_capability, "bus_info", [u8; 32], bus_info),
+                field!(v4l2_capability, "version", u32, version),
+                field!(v4l2_capability, "capabilities", u32, capabilities),
+                field!(v4l2_capability, "device_caps", u32, device_caps),
+                field!(v4l2_capability, "reserved", [u32; 3], reserved),
+            ]
+        ),
+        layout!(
+            v4l2_fmtdesc,
+            [
+                field!(v4l2_fmtdesc, "index", u32, index),
+                field!(v4l2_fmtdesc, "type", u32, type_),
+                field!(v4l2_fmtdesc, "flags", u32, flags),
+                field!(v4l2_fmtdesc, "description", [u8; 32], description),
+                field!(v4l2_fmtdesc, "pixelformat", u32, pixelformat),
+                field!(v4l2_fmtdesc, "mbus_code", u32, mbus_code),
+                field!(v4l2_fmtdesc, "reserved", [u32; 3], reserved),
+            ]
+        ),
+        layout!(
+            v4l2_frmsizeenum,
+            [
+                field!(v4l2_frmsizeenum, "index", u32, index),
+                field!(v4l2_frmsizeenum, "pixel_format", u32, pixel_format),
+                field!(v4l2_frmsizeenum, "type", u32, type_),
+                field!(v4l2_frmsizeenum, "discrete", v4l2_frmsize_discrete, size.discrete),
+                field!(v4l2_frmsizeenum, "stepwise", v4l2_frmsize_stepwise, size.stepwise),
+                field!(v4l2_frmsizeenum, "reserved", [u32; 2], reserved),
+            ]
+        ),
+        layout!(
+            v4l2_frmsize_stepwise,
+            [
+                field!(v4l2_frmsize_stepwise, "min_width", u32, min_width),
+                field!(v4l2_frmsize_stepwise, "max_width", u32, max_width),
+                field!(v4l2_frmsize_stepwise, "step_width", u32, step_width),
+                field!(v4l2_frmsize_stepwise, "min_height", u32, min_height),
+                field!(v4l2_frmsize_stepwise, "max_height", u32, max_height),
+                field!(v4l2_frmsize_stepwise, "step_height", u32, step_height),
+            ]
+        ),
+        layout!(
+            v4l2_pix_format,
+            [
+                field!(v4l2_pix_format, "width", u32, width),
+                field!(v4l2_pix_format, "height", u32, height),
+                field!(v4l2_pix_format, "pixelformat", u32, pixelformat),
+                field!(v4l2_pix_format, "field", u32, field),
+                field!(v4l2_pix_format, "bytesperline", u32, bytesperline),
+                field!(v4l2_pix_format, "sizeimage", u32, sizeimage),
+                field!(v4l2_pix_format, "colorspace", u32, colorspace),
+                field!(v4l2_pix_format, "priv", u32, priv_),
+                field!(v4l2_pix_format, "flags", u32, flags),
+                field!(v4l2_pix_format, "ycbcr_enc", u32, ycbcr_enc),
+                field!(v4l2_pix_format, "quantization", u32, quantization),
+                field!(v4l2_pix_format, "xfer_func", u32, xfer_func),
+            ]
+        ),
+        layout!(
+            v4l2_format,
+            [field!(v4l2_format, "type", u32, type_), field!(v4l2_format, "fmt", v4l2_format_fmt, fmt),]
+        ),
+        layout!(
+            v4l2_requestbuffers,
+            [
+                field!(v4l2_requestbuffers, "count", u32, count),
+                field!(v4l2_requestbuffers, "type", u32, type_),
+                field!(v4l2_requestbuffers, "memory", u32, memory),
+                field!(v4l2_requestbuffers, "capabilities", u32, capabilities),
+            ]
+        ),
+        layout!(
+            v4l2_timecode,
+            [
+                field!(v4l2_timecode, "type", u32, type_),
+                field!(v4l2_timecode, "flags", u32, flags),
+                field!(v4l2_timecode, "frames", u8, frames),
+                field!(v4l2_timecode, "userbits", [u8; 4], userbits),
+            ]
+        ),
+        layout!(
+            v4l2_buffer,
+            [
+                field!(v4l2_buffer, "index", u32, index),
+                field!(v4l2_buffer, "type", u32, type_),
+                field!(v4l2_buffer, "bytesused", u32, bytesused),
+                field!(v4l2_buffer, "flags", u32, flags),
+                field!(v4l2_buffer, "field", u32, field),
+                field!(v4l2_buffer, "timestamp", libc::timeval, timestamp),
+                field!(v4l2_buffer, "timecode", v4l2_timecode, timecode),
+                field!(v4l2_buffer, "sequence", u32, sequence),
+                field!(v4l2_buffer, "memory", u32, memory),
+                field!(v4l2_buffer, "m", v4l2_buffer_m, m),
+                field!(v4l2_buffer, "length", u32, length),
+                field!(v4l2_buffer, "reserved2", u32, reserved2),
+                field!(v4l2_buffer, "request_fd", i32, request_fd),
+            ]
+        ),
+        layout!(
+            v4l2_captureparm,
+            [
+                field!(v4l2_captureparm, "capability", u32, capability),
+                field!(v4l2_captureparm, "capturemode", u32, capturemode),
+                field!(v4l2_captureparm, "timeperframe", v4l2_fract, timeperframe),
+                field!(v4l2_captureparm, "extendedmode", u32, extendedmode),
+                field!(v4l2_captureparm, "readbuffers", u32, readbuffers),
+                field!(v4l2_captureparm, "reserved", [u32; 4], reserved),
+            ]
+        ),
+        layout!(
+            v4l2_streamparm,
+            [field!(v4l2_streamparm, "type", u32, type_), field!(v4l2_streamparm, "parm", v4l2_streamparm_parm, parm),]
+        ),
     ]
 }
 
@@ -255,8 +282,15 @@ fn nodes_that_are_not_v4l2_are_listed_with_their_error_in_numeric_order() {
         assert!(!d.capture);
         assert!(d.formats.is_empty());
         let err = d.error.as_deref().unwrap();
-        assert!(err.contains("VIDIOC_QUERYCAP") && err.contains("not a V4L2 device"), "{err}");
+        assert!(err.starts_with("VIDIOC_QUERYCAP: ") && is_not_v4l2(err), "{err}");
     }
+}
+
+/// The kernel answers ENOTTY to a V4L2 ioctl on a file that is not a V4L2
+/// device; qemu-user (the aarch64 run in CI) answers ENOSYS for ioctls it does
+/// not translate, V4L2's included.
+fn is_not_v4l2(message: &str) -> bool {
+    message.contains("not a V4L2 device") || message.contains("running under an emulator")
 }
 
 fn open_error(path: &Path) -> (PathBuf, String) {
@@ -280,8 +314,7 @@ fn opening_something_that_is_not_a_v4l2_device_fails_at_querycap() {
     for path in [Path::new("/dev/null"), file.path()] {
         let (got, message) = open_error(path);
         assert_eq!(got, path);
-        assert!(message.starts_with("VIDIOC_QUERYCAP: "), "{message}");
-        assert!(message.contains("not a V4L2 device"), "{message}");
+        assert!(message.starts_with("VIDIOC_QUERYCAP: ") && is_not_v4l2(&message), "{message}");
     }
 }
 

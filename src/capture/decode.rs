@@ -134,7 +134,13 @@ impl FromStr for PixelFormat {
 /// `bytes_per_line` is the row stride of packed formats (V4L2 `bytesperline`,
 /// at least one row's bytes; rows may be padded) and is ignored for MJPG, whose
 /// decoded size must equal `width` x `height`. Z16 is not a colour format.
-pub fn decode_color(format: PixelFormat, data: &[u8], width: u32, height: u32, bytes_per_line: u32) -> Result<ColorImage> {
+pub fn decode_color(
+    format: PixelFormat,
+    data: &[u8],
+    width: u32,
+    height: u32,
+    bytes_per_line: u32,
+) -> Result<ColorImage> {
     match format {
         PixelFormat::Yuyv => decode_yuyv(data, width, height, bytes_per_line),
         PixelFormat::Rgb3 => decode_rgb3(data, width, height, bytes_per_line),
@@ -245,7 +251,7 @@ fn to_u8(sum: i64) -> u8 {
 }
 
 fn decode_yuyv(data: &[u8], width: u32, height: u32, bytes_per_line: u32) -> Result<ColorImage> {
-    if width % 2 != 0 {
+    if !width.is_multiple_of(2) {
         return Err(Error::decode(
             PixelFormat::Yuyv.name(),
             format!("odd width {width}: YUYV packs pixels in pairs sharing U and V"),
@@ -402,9 +408,7 @@ fn decode_mjpg(data: &[u8], width: u32, height: u32) -> Result<ColorImage> {
             Cow::Owned(patched)
         }
     };
-    let options = DecoderOptions::default()
-        .set_strict_mode(true)
-        .jpeg_set_out_colorspace(ColorSpace::RGB);
+    let options = DecoderOptions::default().set_strict_mode(true).jpeg_set_out_colorspace(ColorSpace::RGB);
     let mut decoder = JpegDecoder::new_with_options(ZCursor::new(jpeg.as_ref()), options);
     // Headers first: the size is checked before any pixel buffer is allocated.
     decoder.decode_headers().map_err(|e| err(format!("corrupt JPEG: {e}")))?;

@@ -7,8 +7,11 @@
 //! - [`registration`]: the camera config (intrinsics of both sensors,
 //!   extrinsics, depth scale) and depth-to-colour registration.
 //! - [`source`]: the [`FrameSource`] trait the pipeline reads from, with
-//!   recording replay ([`RecordingSource`]) and live cameras ([`CameraSource`]).
+//!   recording replay ([`RecordingSource`]).
+//! - `camera` (feature `v4l`, Linux): `CameraSource`, live frames from two V4L2 nodes.
 
+#[cfg(all(feature = "v4l", target_os = "linux"))]
+pub mod camera;
 pub mod decode;
 pub mod pairing;
 pub mod registration;
@@ -16,8 +19,8 @@ pub mod source;
 #[cfg(all(feature = "v4l", target_os = "linux"))]
 pub mod v4l2;
 
+#[cfg(all(feature = "v4l", target_os = "linux"))]
+pub use camera::{CameraSettings, CameraSource};
 pub use pairing::{FramePairer, Pair, PairingStats, Timed};
 pub use registration::{CameraConfig, register_depth};
 pub use source::{FrameSource, Pace, RecordingSource, SourceFrame};
-#[cfg(all(feature = "v4l", target_os = "linux"))]
-pub use source::{CameraSettings, CameraSource};

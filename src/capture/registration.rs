@@ -65,7 +65,8 @@ impl CameraConfig {
                 format!("field version: {found} is not supported (this build reads {CAMERA_CONFIG_VERSION})"),
             ));
         }
-        let config: CameraConfig = serde_json::from_value(value).map_err(|e| Error::parse(path, None, e.to_string()))?;
+        let config: CameraConfig =
+            serde_json::from_value(value).map_err(|e| Error::parse(path, None, e.to_string()))?;
         config.validate().map_err(|m| Error::parse(path, None, m))?;
         Ok(config)
     }

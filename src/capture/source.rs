@@ -2,8 +2,8 @@
 //!
 //! A [`FrameSource`] yields registered RGB-D frames one at a time. Two are
 //! built in: [`RecordingSource`] replays a recording (at its recorded rate or
-//! as fast as the reader goes, optionally in a loop), and `CameraSource`
-//! (feature `v4l`) reads a colour and a depth V4L2 node, pairs and registers.
+//! as fast as the reader goes, optionally in a loop); `capture::camera`'s
+//! `CameraSource` (feature `v4l`) reads a colour and a depth V4L2 node.
 
 use super::registration::CameraConfig;
 use crate::error::{Error, Result};
@@ -74,6 +74,8 @@ pub struct RecordingSource {
     clock: Option<(Instant, f64)>,
     /// Recorded time offset of the current pass (so timestamps keep increasing in loops).
     pass_offset_s: f64,
+    /// Recorded times of the first and the latest frame read (without the offset).
+    pass_span_s: Option<(f64, f64)>,
     failed: bool,
 }
 
@@ -103,6 +105,7 @@ impl RecordingSource {
             seq: 0,
             clock: None,
             pass_offset_s: 0.0,
+            pass_span_s: None,
             failed: false,
         })
     }
@@ -128,7 +131,6 @@ impl RecordingSource {
     pub fn is_empty(&self) -> bool {
         self.recording.is_empty()
     }
-
 }
 
 /// The camera config of a recording: from its manifest where it has one.
@@ -150,7 +152,7 @@ fn recording_camera(path: &Path, recording: &dyn Recording) -> CameraConfig {
 impl FrameSource for RecordingSource {
     fn describe(&self) -> String {
         let pace = match self.pace {
-            Pace::Recorded { speed } if speed == 1.0 => "at the recorded rate".to_string(),
+            Pace::Recorded { speed: 1.0 } => "at the recorded rate".to_string(),
             Pace::Recorded { speed } => format!("at {speed}x the recorded rate"),
             Pace::Max => "as fast as inference goes".to_string(),
         };
@@ -177,8 +179,7 @@ impl FrameSource for RecordingSource {
             }
             // The next pass continues one frame period after the last frame.
             let n = self.recording.len();
-            let last = self.recording.read_frame(n - 1).map(|f| f.timestamp_s).unwrap_or(0.0);
-            let first = self.recording.read_frame(0).map(|f| f.timestamp_s).unwrap_or(0.0);
+            let (first, last) = self.pass_span_s.unwrap_or((0.0, 0.0));
             let period = if n > 1 { (last - first) / (n - 1) as f64 } else { 1.0 / 30.0 };
             self.pass_offset_s += last - first + period;
             self.next_index = 0;
@@ -196,6 +197,8 @@ impl FrameSource for RecordingSource {
                 return Err(e);
             }
         };
+        let (first, _) = *self.pass_span_s.get_or_insert((frame.timestamp_s, frame.timestamp_s));
+        self.pass_span_s = Some((first, frame.timestamp_s));
         let t_s = self.pass_offset_s + frame.timestamp_s;
         if let Pace::Recorded { speed } = self.pace {
             let (start, t0) = *self.clock.get_or_insert((Instant::now(), t_s));
@@ -228,185 +231,5 @@ impl FrameSource for RecordingSource {
 
     fn is_live(&self) -> bool {
         matches!(self.pace, Pace::Recorded { .. })
-    }
-}
-
-#[cfg(all(feature = "v4l", target_os = "linux"))]
-pub use camera::{CameraSettings, CameraSource};
-
-#[cfg(all(feature = "v4l", target_os = "linux"))]
-mod camera {
-    use super::{FrameSource, SourceFrame};
-    use crate::capture::decode::{PixelFormat, decode_color, decode_depth_z16};
-    use crate::capture::pairing::{FramePairer, PairingStats, Timed};
-    use crate::capture::registration::{CameraConfig, register_depth};
-    use crate::capture::v4l2::{RawBuffer, V4l2Stream};
-    use crate::error::{Error, Result};
-    use crate::frame::RgbdFrame;
-    use std::path::PathBuf;
-    use std::time::{Duration, Instant};
-
-    /// Buffers requested from each V4L2 node.
-    pub const CAPTURE_BUFFERS: u32 = 4;
-    /// How long one node is polled before the other gets its turn.
-    const POLL_SLICE: Duration = Duration::from_millis(2);
-
-    /// Which nodes to open and how.
-    #[derive(Clone, Debug)]
-    pub struct CameraSettings {
-        /// Colour node, e.g. `/dev/video4`.
-        pub color_device: PathBuf,
-        /// Colour pixel format (YUYV, MJPG or RGB3).
-        pub color_format: PixelFormat,
-        /// Depth node (Z16), e.g. `/dev/video0`.
-        pub depth_device: PathBuf,
-        /// Frame rate asked of both nodes.
-        pub fps: Option<u32>,
-        /// Calibration: image sizes, intrinsics, extrinsics, depth unit.
-        pub camera: CameraConfig,
-        /// Pairing tolerance, seconds.
-        pub pair_tolerance_s: f64,
-        /// No frame pair for this long counts as a lost device.
-        pub stall_timeout: Duration,
-    }
-
-    /// Live RGB-D frames from two V4L2 nodes: paired by timestamp, decoded,
-    /// depth registered to colour.
-    pub struct CameraSource {
-        settings: CameraSettings,
-        streams: Option<(V4l2Stream, V4l2Stream)>,
-        pairer: FramePairer<RawBuffer, RawBuffer>,
-        seq: u64,
-    }
-
-    impl CameraSource {
-        /// Opens both nodes and starts streaming.
-        pub fn open(settings: CameraSettings) -> Result<CameraSource> {
-            if settings.color_format.is_depth() {
-                return Err(Error::InvalidArgument(format!(
-                    "colour format {} is a depth format",
-                    settings.color_format
-                )));
-            }
-            settings.camera.validate().map_err(Error::InvalidArgument)?;
-            let mut source = CameraSource {
-                pairer: FramePairer::new(settings.pair_tolerance_s, super::super::pairing::DEFAULT_PAIR_QUEUE),
-                settings,
-                streams: None,
-                seq: 0,
-            };
-            source.reopen()?;
-            Ok(source)
-        }
-
-        /// Pairing counts so far (frames each node delivered without a partner).
-        pub fn pairing_stats(&self) -> PairingStats {
-            self.pairer.stats()
-        }
-
-        fn decode(&self, color: &RawBuffer, depth: &RawBuffer, streams: &(V4l2Stream, V4l2Stream)) -> Result<RgbdFrame> {
-            let (cf, cw, ch, cbpl) = streams.0.format();
-            let (_, dw, dh, dbpl) = streams.1.format();
-            let image = decode_color(cf, &color.data, cw, ch, cbpl)?;
-            let raw = decode_depth_z16(&depth.data, dw, dh, dbpl)?;
-            let depth = register_depth(&raw, &self.settings.camera)?;
-            Ok(RgbdFrame { color: image, depth, intrinsics: self.settings.camera.color, timestamp_s: color.timestamp_s })
-        }
-    }
-
-    impl FrameSource for CameraSource {
-        fn describe(&self) -> String {
-            let s = &self.settings;
-            format!(
-                "camera: colour {} ({} {}x{}), depth {} (Z16 {}x{})",
-                s.color_device.display(),
-                s.color_format,
-                s.camera.color.width,
-                s.camera.color.height,
-                s.depth_device.display(),
-                s.camera.depth.width,
-                s.camera.depth.height
-            )
-        }
-
-        fn camera(&self) -> CameraConfig {
-            self.settings.camera.clone()
-        }
-
-        fn next_frame(&mut self) -> Result<Option<SourceFrame>> {
-            if self.streams.is_none() {
-                return Err(Error::device(&self.settings.color_device, "not open (reopen after an error)"));
-            }
-            let started = Instant::now();
-            loop {
-                if let Some(pair) = self.pairer.pop_pair() {
-                    let streams = self.streams.as_ref().ok_or_else(|| {
-                        Error::device(&self.settings.color_device, "not open (reopen after an error)")
-                    })?;
-                    let frame = self.decode(&pair.color.value, &pair.depth.value, streams)?;
-                    let seq = self.seq;
-                    self.seq += 1;
-                    return Ok(Some(SourceFrame {
-                        seq,
-                        id: format!("{seq:06}"),
-                        frame,
-                        annotations: None,
-                        captured_at: Instant::now(),
-                    }));
-                }
-                if started.elapsed() > self.settings.stall_timeout {
-                    self.streams = None;
-                    return Err(Error::device(
-                        &self.settings.color_device,
-                        format!("no colour/depth pair for {:.1} s", self.settings.stall_timeout.as_secs_f64()),
-                    ));
-                }
-                let Some(streams) = self.streams.as_mut() else {
-                    return Err(Error::device(&self.settings.color_device, "not open (reopen after an error)"));
-                };
-                let pairer = &mut self.pairer;
-                let result = (|| -> Result<()> {
-                    if let Some(b) = streams.0.next_buffer(POLL_SLICE)? {
-                        pairer.push_color(Timed { timestamp_s: b.timestamp_s, value: b });
-                    }
-                    if let Some(b) = streams.1.next_buffer(POLL_SLICE)? {
-                        pairer.push_depth(Timed { timestamp_s: b.timestamp_s, value: b });
-                    }
-                    Ok(())
-                })();
-                if let Err(e) = result {
-                    self.streams = None;
-                    return Err(e);
-                }
-            }
-        }
-
-        fn reopen(&mut self) -> Result<()> {
-            self.streams = None;
-            self.pairer.clear();
-            let s = &self.settings;
-            let color = V4l2Stream::open(
-                &s.color_device,
-                s.color_format,
-                s.camera.color.width,
-                s.camera.color.height,
-                s.fps,
-                CAPTURE_BUFFERS,
-            )?;
-            let depth = V4l2Stream::open(
-                &s.depth_device,
-                PixelFormat::Z16,
-                s.camera.depth.width,
-                s.camera.depth.height,
-                s.fps,
-                CAPTURE_BUFFERS,
-            )?;
-            self.streams = Some((color, depth));
-            Ok(())
-        }
-
-        fn is_live(&self) -> bool {
-            true
-        }
     }
 }

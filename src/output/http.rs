@@ -149,7 +149,8 @@ fn accept_loop(listener: TcpListener, stats: Arc<PipelineStats>, hub: Arc<Stream
                     continue;
                 }
                 active.fetch_add(1, Ordering::SeqCst);
-                let (stats, hub, stop, active) = (Arc::clone(&stats), Arc::clone(&hub), Arc::clone(&stop), Arc::clone(&active));
+                let (stats, hub, stop, active) =
+                    (Arc::clone(&stats), Arc::clone(&hub), Arc::clone(&stop), Arc::clone(&active));
                 let spawned = std::thread::Builder::new().name("http-conn".into()).spawn(move || {
                     if let Err(e) = handle(stream, &stats, &hub, &stop) {
                         log::debug!("http: {e}");

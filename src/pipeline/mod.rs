@@ -88,7 +88,11 @@ pub struct PipelineBuilder {
 
 impl PipelineBuilder {
     /// A pipeline reading `source`, masking with `segment`, estimating with `estimate`.
-    pub fn new(source: Box<dyn FrameSource>, segment: Box<dyn Segment>, estimate: Box<dyn Estimate>) -> PipelineBuilder {
+    pub fn new(
+        source: Box<dyn FrameSource>,
+        segment: Box<dyn Segment>,
+        estimate: Box<dyn Estimate>,
+    ) -> PipelineBuilder {
         PipelineBuilder {
             source,
             segment,
@@ -279,7 +283,8 @@ impl Pipeline {
                     sink_error.get_or_insert(e);
                 }
             }
-            let panicked = [capture, segmenting, posing].into_iter().map(|h| h.join().is_err()).any(|p| p);
+            let joined: Vec<bool> = [capture, segmenting, posing].into_iter().map(|h| h.join().is_err()).collect();
+            let panicked = joined.contains(&true);
             stats.set_source_state(SourceState::Ended);
             if panicked {
                 return Err(Error::Inference("a pipeline stage panicked".into()));

@@ -8,9 +8,9 @@ use crate::capture::SourceFrame;
 use crate::category::Category;
 use crate::error::{Error, Result};
 use crate::frame::ColorImage;
-use crate::recording::FrameAnnotations;
 use crate::output::PredInstance;
 use crate::pose::{PoseEstimator, Skipped};
+use crate::recording::FrameAnnotations;
 use crate::segment::Segmenter;
 
 /// One instance to estimate: category, score, optional 2D box and full-image mask.
@@ -68,7 +68,10 @@ pub struct GroundTruthMasks;
 impl Segment for GroundTruthMasks {
     fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
         let missing = |what: &str| {
-            Error::InvalidArgument(format!("frame {}: {what} (ground-truth masks need an annotated recording)", frame.id))
+            Error::InvalidArgument(format!(
+                "frame {}: {what} (ground-truth masks need an annotated recording)",
+                frame.id
+            ))
         };
         let ann = frame.annotations.as_ref().ok_or_else(|| missing("no annotations"))?;
         detections_from_annotations(ann).ok_or_else(|| missing("annotations without an instance mask"))
@@ -78,7 +81,13 @@ impl Segment for GroundTruthMasks {
 /// Ground-truth detections (score 1) of an annotated frame; `None` without an instance mask.
 pub fn detections_from_annotations(ann: &FrameAnnotations) -> Option<Vec<Detection>> {
     let masks = ann.instance_masks()?;
-    Some(ann.instances.iter().zip(masks).map(|(g, mask)| Detection { class: g.class, score: 1.0, box2d: None, mask }).collect())
+    Some(
+        ann.instances
+            .iter()
+            .zip(masks)
+            .map(|(g, mask)| Detection { class: g.class, score: 1.0, box2d: None, mask })
+            .collect(),
+    )
 }
 
 /// The pose network as a stage; frame `seq` samples its points from `(seed, seq)`.
@@ -94,6 +103,9 @@ impl PoseStage {
     }
 }
 
+/// A skipped detection: its index and why.
+pub type SkippedDetection = (usize, Skipped);
+
 /// Poses of `detections` in `frame` with the point sampling seeded by `seed`;
 /// also returns each skipped instance's index and reason.
 pub fn estimate_detections(
@@ -101,7 +113,7 @@ pub fn estimate_detections(
     frame: &crate::frame::RgbdFrame,
     detections: &[Detection],
     seed: u64,
-) -> Result<(Vec<PredInstance>, Vec<(usize, Skipped)>)> {
+) -> Result<(Vec<PredInstance>, Vec<SkippedDetection>)> {
     let masks: Vec<&[bool]> = detections.iter().map(|d| d.mask.as_slice()).collect();
     let outcomes = estimator.estimate(frame, &masks, seed)?;
     let (mut instances, mut skipped) = (Vec::new(), Vec::new());

@@ -4,7 +4,7 @@ use super::queue::BoundedQueue;
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 /// Latency samples kept per stage for the percentiles.
@@ -348,8 +348,18 @@ impl StatsSnapshot {
         ] {
             metric(name, help, "counter", vec![(String::new(), v as f64)]);
         }
-        metric("resident_memory_bytes", "Resident memory.", "gauge", vec![(String::new(), self.rss_kib as f64 * 1024.0)]);
-        metric("fps", "Published frames per second over the last five seconds.", "gauge", vec![(String::new(), self.fps_recent)]);
+        metric(
+            "resident_memory_bytes",
+            "Resident memory.",
+            "gauge",
+            vec![(String::new(), self.rss_kib as f64 * 1024.0)],
+        );
+        metric(
+            "fps",
+            "Published frames per second over the last five seconds.",
+            "gauge",
+            vec![(String::new(), self.fps_recent)],
+        );
         let lat = |q: &str, f: fn(&LatencySummary) -> f64| -> Vec<(String, f64)> {
             self.latency.iter().map(|(st, l)| (format!("{{stage=\"{st}\",quantile=\"{q}\"}}"), f(l))).collect()
         };

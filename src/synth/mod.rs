@@ -187,7 +187,13 @@ fn frame_scene(cfg: &SynthConfig, seed: u64, index: u64, attempt: u64) -> scene:
 /// `sensor_from_color` relative to the colour camera. This is what a depth
 /// sensor beside the colour camera measures before registration; it exists to
 /// test depth-to-colour registration against ground truth.
-pub fn render_sensor_depth(cfg: &SynthConfig, seed: u64, index: u64, sensor: &Intrinsics, sensor_from_color: &Pose) -> Vec<f32> {
+pub fn render_sensor_depth(
+    cfg: &SynthConfig,
+    seed: u64,
+    index: u64,
+    sensor: &Intrinsics,
+    sensor_from_color: &Pose,
+) -> Vec<f32> {
     // The same scene as render_frame: replay its attempts until one has an annotated object.
     let mut attempt = 0;
     let mut sc = loop {

@@ -16,8 +16,9 @@ pub fn bar(total: usize, what: &str) -> ProgressBar {
 /// A counter without a known total (frames recorded until stopped).
 pub fn spinner(what: &str) -> ProgressBar {
     let pb = ProgressBar::new_spinner();
-    let style = ProgressStyle::with_template(&format!("{{spinner}} {what} [{{elapsed_precise}}] {{pos}} frames ({{per_sec}})"))
-        .unwrap_or_else(|_| ProgressStyle::default_spinner());
+    let style =
+        ProgressStyle::with_template(&format!("{{spinner}} {what} [{{elapsed_precise}}] {{pos}} frames ({{per_sec}})"))
+            .unwrap_or_else(|_| ProgressStyle::default_spinner());
     pb.set_style(style);
     pb
 }

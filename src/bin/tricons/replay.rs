@@ -8,7 +8,9 @@ use tricons::atomic::write_atomic;
 use tricons::metrics::{EvalConfig, IouMode, evaluate_recording};
 use tricons::output::overlay::draw_overlay;
 use tricons::output::predictions::{FramePredictions, write_predictions};
-use tricons::pipeline::stages::{Detection, detections_from_annotations, detections_from_segmenter, estimate_detections};
+use tricons::pipeline::stages::{
+    Detection, detections_from_annotations, detections_from_segmenter, estimate_detections,
+};
 use tricons::pose::{PoseEstimator, Skipped};
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;

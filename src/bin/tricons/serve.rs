@@ -84,7 +84,8 @@ impl Args {
             return Ok(self);
         };
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let file: Args = serde_json::from_str(&text).with_context(|| format!("{}: not a serve config", path.display()))?;
+        let file: Args =
+            serde_json::from_str(&text).with_context(|| format!("{}: not a serve config", path.display()))?;
         Ok(Args {
             config: self.config,
             source: self.source.or(file.source),
@@ -141,11 +142,12 @@ pub fn run(args: Args) -> Result<()> {
         Some(server)
     };
 
-    let mut builder = PipelineBuilder::new(source, segment, Box::new(PoseStage::new(estimator, args.seed.unwrap_or(0))))
-        .capture_queue(args.queue.unwrap_or(DEFAULT_CAPTURE_QUEUE))
-        .max_frames(args.frames)
-        .stats(Arc::clone(&stats))
-        .stop_handle(stop.clone());
+    let mut builder =
+        PipelineBuilder::new(source, segment, Box::new(PoseStage::new(estimator, args.seed.unwrap_or(0))))
+            .capture_queue(args.queue.unwrap_or(DEFAULT_CAPTURE_QUEUE))
+            .max_frames(args.frames)
+            .stats(Arc::clone(&stats))
+            .stop_handle(stop.clone());
     for sink in sinks {
         builder = builder.sink(sink);
     }

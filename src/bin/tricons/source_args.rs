@@ -117,7 +117,9 @@ impl SourceArgs {
             depth_device: depth.clone(),
             fps: Some(self.fps.unwrap_or(30)),
             camera,
-            pair_tolerance_s: self.pair_tolerance_ms.unwrap_or(tricons::capture::pairing::DEFAULT_PAIR_TOLERANCE_S * 1e3)
+            pair_tolerance_s: self
+                .pair_tolerance_ms
+                .unwrap_or(tricons::capture::pairing::DEFAULT_PAIR_TOLERANCE_S * 1e3)
                 / 1e3,
             stall_timeout: std::time::Duration::from_secs(2),
         };

@@ -130,6 +130,8 @@ fn xioctl<T>(fd: RawFd, request: libc::Ioctl, arg: &mut T) -> io::Result<()> {
 fn ioctl_error(path: &Path, request: &str, err: &io::Error) -> Error {
     let hint = match err.raw_os_error() {
         Some(libc::ENOTTY) => ": not a V4L2 device",
+        // What qemu-user answers for ioctls it does not translate.
+        Some(libc::ENOSYS) => ": ioctl not implemented here (running under an emulator such as qemu-user?)",
         Some(libc::ENODEV) => ": device vanished (unplugged?)",
         Some(libc::EBUSY) => ": another program is using the device",
         _ => "",
@@ -365,7 +367,11 @@ impl V4l2Stream {
             };
             return Err(Error::device(
                 path,
-                format!("{} ({}) is {what} (capabilities 0x{caps:08x})", sys::c_chars(&cap.card), sys::c_chars(&cap.driver)),
+                format!(
+                    "{} ({}) is {what} (capabilities 0x{caps:08x})",
+                    sys::c_chars(&cap.card),
+                    sys::c_chars(&cap.driver)
+                ),
             ));
         }
         if caps & sys::V4L2_CAP_STREAMING == 0 {
@@ -525,6 +531,8 @@ impl V4l2Stream {
             xioctl(fd, sys::VIDIOC_QUERYBUF, &mut buf).map_err(|e| ioctl_error(&self.path, "VIDIOC_QUERYBUF", &e))?;
             // SAFETY: for V4L2_MEMORY_MMAP buffers the driver sets the `offset` member.
             let offset = unsafe { buf.m.offset };
+            // Fallible where off_t is 32-bit (armv7 without large-file offsets).
+            #[allow(clippy::unnecessary_fallible_conversions)]
             let offset = libc::off_t::try_from(offset)
                 .map_err(|_| Error::device(&self.path, format!("buffer {index}: mmap offset {offset} out of range")))?;
             let len = buf.length as usize;
@@ -620,7 +628,11 @@ fn set_format(fd: RawFd, path: &Path, format: PixelFormat, width: u32, height: u
         ));
     }
     if got.field != sys::V4L2_FIELD_NONE && got.field != sys::V4L2_FIELD_ANY {
-        log::warn!("{}: the driver delivers interlaced frames (field {}); rows will alternate fields", path.display(), got.field);
+        log::warn!(
+            "{}: the driver delivers interlaced frames (field {}); rows will alternate fields",
+            path.display(),
+            got.field
+        );
     }
     Ok(got)
 }

@@ -373,13 +373,25 @@ impl_zeroed!(
 // used by x86, arm and arm64): nr in bits 0..8, type in 8..16, argument size in
 // 16..30, direction in 30..32. powerpc, mips and sparc use 13 size bits and 3
 // direction bits with other direction values.
-#[cfg(not(any(target_arch = "powerpc", target_arch = "powerpc64", target_arch = "mips", target_arch = "mips64", target_arch = "sparc64")))]
+#[cfg(not(any(
+    target_arch = "powerpc",
+    target_arch = "powerpc64",
+    target_arch = "mips",
+    target_arch = "mips64",
+    target_arch = "sparc64"
+)))]
 mod ioc {
     pub const SIZEBITS: u32 = 14;
     pub const WRITE: u32 = 1;
     pub const READ: u32 = 2;
 }
-#[cfg(any(target_arch = "powerpc", target_arch = "powerpc64", target_arch = "mips", target_arch = "mips64", target_arch = "sparc64"))]
+#[cfg(any(
+    target_arch = "powerpc",
+    target_arch = "powerpc64",
+    target_arch = "mips",
+    target_arch = "mips64",
+    target_arch = "sparc64"
+))]
 mod ioc {
     pub const SIZEBITS: u32 = 13;
     pub const WRITE: u32 = 4;
@@ -393,7 +405,10 @@ const IOC_DIRSHIFT: u32 = IOC_SIZESHIFT + ioc::SIZEBITS;
 /// `_IOC(dir, type, nr, size)`; fails to compile if `size` does not fit the size field.
 const fn ioc_request(dir: u32, ty: u8, nr: u8, size: usize) -> libc::Ioctl {
     assert!(size < 1 << ioc::SIZEBITS, "ioctl argument too large for the _IOC size field");
-    let code = (dir << IOC_DIRSHIFT) | ((ty as u32) << IOC_TYPESHIFT) | ((nr as u32) << IOC_NRSHIFT) | ((size as u32) << IOC_SIZESHIFT);
+    let code = (dir << IOC_DIRSHIFT)
+        | ((ty as u32) << IOC_TYPESHIFT)
+        | ((nr as u32) << IOC_NRSHIFT)
+        | ((size as u32) << IOC_SIZESHIFT);
     // `Ioctl` is `c_ulong` on glibc and `c_int` on musl; both take the 32-bit code as is.
     code as libc::Ioctl
 }
