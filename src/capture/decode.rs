@@ -27,7 +27,7 @@
 //! summed in `i64` and rounded with `(sum + 2^23) >> 24`. The tables' error
 //! (at most 1.5 * 2^-24) is smaller than the distance of any exact value from a
 //! rounding tie, so the integer result equals the rounded real formula for all
-//! 2^24 (Y, U, V) triples (checked exhaustively in tests/capture_decode_tests.rs).
+//! 2^24 (Y, U, V) triples (checked exhaustively in tests/capture/decode.rs).
 //! Values outside the nominal range (Y < 16, Y > 235, ...) are converted by
 //! the same formula and clamped, as cameras do send them.
 //!

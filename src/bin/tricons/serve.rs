@@ -56,7 +56,7 @@ pub struct Args {
     #[arg(long, value_name = "PATH")]
     #[serde(default)]
     out: Vec<PathBuf>,
-    /// HTTP endpoint address (/health /metrics /latest /stream); loopback unless told otherwise.
+    /// HTTP endpoint (/health /metrics /latest /stream); 0.0.0.0:PORT serves the network [default: 127.0.0.1:7878].
     #[arg(long, value_name = "ADDR")]
     listen: Option<String>,
     /// No HTTP endpoint.

@@ -4,7 +4,7 @@
 //!
 //! Request numbers are computed from the `_IOC` encoding with the `size_of` of
 //! these structs, so they follow the target's ABI (pointer size, `time_t`)
-//! automatically. tests/v4l2_abi_tests.rs checks every size, alignment, field
+//! automatically. tests/capture/v4l2_abi.rs checks every size, alignment, field
 //! offset, constant and request number against the C header's, as compiled by
 //! tests/fixtures/capture/abi/v4l2_abi.c for x86_64, aarch64 and armv7.
 //!

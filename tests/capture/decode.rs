@@ -3,12 +3,11 @@
 //! BT.601 formula in numpy, JPEGs encoded and decoded by PIL/libjpeg-turbo),
 //! malformed buffers, and the `tricons devices` command on a machine without cameras.
 
-mod common;
 
 use std::path::PathBuf;
 use std::str::FromStr;
 
-use common::cli::{stderr, tricons};
+use crate::common::cli::{stderr, tricons};
 use serde_json::Value;
 use tricons::Error;
 use tricons::capture::decode::{PixelFormat, annex_k, decode_color, decode_depth_z16};
@@ -309,7 +308,7 @@ fn mangled_jpegs_never_panic() {
 }
 
 /// 640x480 YUYV, the common webcam mode, in release builds:
-/// `cargo test --release --test capture_decode_tests -- --ignored --nocapture`.
+/// `cargo test --release --test capture_tests -- --ignored --nocapture`.
 #[test]
 #[ignore = "timing; run in release"]
 fn yuyv_640x480_decode_time() {

@@ -1,13 +1,12 @@
 //! `tricons serve` and `tricons record` as a user runs them: results in order,
 //! SIGTERM/SIGINT finish cleanly with everything completed on disk, bad input.
 
-mod common;
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 use std::time::Duration;
 
-use common::cli::{assert_clean_failure, demo_subset, repo, signal, spawn_tricons, tricons, wait_for};
+use crate::common::cli::{assert_clean_failure, demo_subset, repo, signal, spawn_tricons, tricons, wait_for};
 use tricons::output::FramePredictions;
 use tricons::recording::open_recording;
 
@@ -31,7 +30,7 @@ fn serve_replays_a_recording_in_order_and_appends() {
     let (rec, out_s, stats_s) = (rec.to_str().unwrap(), out.to_str().unwrap(), stats.to_str().unwrap());
     let args = ["serve", "--recording", rec, "--rate", "max", "--masks", "gt", "--no-listen", "--out", out_s];
     let o = tricons(&[&args[..], &["--stats-out", stats_s]].concat());
-    assert!(o.status.success(), "{}", common::cli::stderr(&o));
+    assert!(o.status.success(), "{}", crate::common::cli::stderr(&o));
     assert!(o.stdout.is_empty(), "--out given: nothing on stdout");
     let first = lines(&out);
     assert_eq!(first.iter().map(|f| f.frame.as_str()).collect::<Vec<_>>(), ["000000", "000002"]);
@@ -240,6 +239,6 @@ fn the_example_serve_config_is_valid() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    assert!(o.status.success(), "{}", common::cli::stderr(&o));
+    assert!(o.status.success(), "{}", crate::common::cli::stderr(&o));
     assert_eq!(lines(&out).len(), 1);
 }

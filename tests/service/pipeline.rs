@@ -1,7 +1,6 @@
 //! The service pipeline: order, drops under a slow stage, draining on stop,
 //! a source failing mid-stream, the HTTP view.
 
-mod common;
 
 use std::io::{Read, Write};
 use std::path::Path;
@@ -125,16 +124,20 @@ fn seq_of(f: &FramePredictions) -> u64 {
 }
 
 fn demo(pace: Pace, loops: Option<u64>) -> RecordingSource {
-    RecordingSource::open(Path::new(&common::cli::repo(DEMO)), pace).unwrap().looped(loops).with_annotations(true)
+    RecordingSource::open(Path::new(&crate::common::cli::repo(DEMO)), pace).unwrap().looped(loops).with_annotations(true)
 }
 
 #[test]
 fn the_pose_service_publishes_what_the_estimator_gives_in_order() {
-    let model = common::cli::repo("models/tricons-pose.card.json");
+    let model = crate::common::cli::repo("models/tricons-pose.card.json");
     let estimator = PoseEstimator::load(Path::new(&model)).unwrap();
+    // Two frames twice (the aarch64 suite runs this under qemu).
+    let dir = tempfile::tempdir().unwrap();
+    let rec = crate::common::cli::demo_subset(dir.path(), 2, true);
+    let open = || RecordingSource::open(&rec, Pace::Max).unwrap().looped(Some(2)).with_annotations(true);
     let out = Collect::default();
     let summary = PipelineBuilder::new(
-        Box::new(demo(Pace::Max, Some(2))),
+        Box::new(open()),
         Box::new(GroundTruthMasks),
         Box::new(PoseStage::new(estimator, 7)),
     )
@@ -144,12 +147,12 @@ fn the_pose_service_publishes_what_the_estimator_gives_in_order() {
     .unwrap();
     let frames = out.frames();
     let ids: Vec<&str> = frames.iter().map(|f| f.frame.as_str()).collect();
-    assert_eq!(ids, ["000000", "000002", "000003", "000005"].repeat(2));
+    assert_eq!(ids, ["000000", "000002"].repeat(2));
     assert!(frames.windows(2).all(|w| w[0].timestamp_s < w[1].timestamp_s), "timestamps must increase across loops");
-    assert_eq!((summary.frames_captured, summary.frames_published, summary.frames_dropped), (8, 8, 0));
+    assert_eq!((summary.frames_captured, summary.frames_published, summary.frames_dropped), (4, 4, 0));
     // Each result is exactly the estimator's on that frame with the stream position's seed.
     let estimator = PoseEstimator::load(Path::new(&model)).unwrap();
-    let mut source = demo(Pace::Max, Some(2));
+    let mut source = open();
     for published in &frames {
         let f = source.next_frame().unwrap().unwrap();
         let detections =
@@ -310,7 +313,7 @@ fn a_source_that_fails_mid_stream_is_reopened_and_the_service_goes_on() {
 #[test]
 fn an_unreadable_recorded_frame_is_skipped_after_reopening() {
     let dir = tempfile::tempdir().unwrap();
-    let rec = common::cli::demo_subset(dir.path(), 4, true);
+    let rec = crate::common::cli::demo_subset(dir.path(), 4, true);
     std::fs::write(rec.join("000002_color.png"), b"not a png").unwrap();
     let out = Collect::default();
     let source = RecordingSource::open(&rec, Pace::Max).unwrap().with_annotations(true);
