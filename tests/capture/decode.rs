@@ -3,7 +3,6 @@
 //! BT.601 formula in numpy, JPEGs encoded and decoded by PIL/libjpeg-turbo),
 //! malformed buffers, and the `tricons devices` command on a machine without cameras.
 
-
 use std::path::PathBuf;
 use std::str::FromStr;
 

@@ -1,7 +1,6 @@
 //! `tricons serve` and `tricons record` as a user runs them: results in order,
 //! SIGTERM/SIGINT finish cleanly with everything completed on disk, bad input.
 
-
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 use std::time::Duration;
@@ -39,9 +38,13 @@ fn serve_replays_a_recording_in_order_and_appends() {
     assert_eq!((health["frames_published"].as_u64(), health["frames_dropped"].as_u64()), (Some(2), Some(0)));
     assert_eq!(health["status"], "ended");
 
-    // A second run appends: what the first wrote is kept.
-    let o = tricons(&args);
-    assert!(o.status.success());
+    // A second run appends: what the first wrote is kept. It goes through the
+    // example serve config (docs/deploy/): it must parse; its camera and model
+    // paths are a board's, so the flags replace them.
+    let example = repo("docs/deploy/serve.example.json");
+    let model = repo("models/tricons-pose.card.json");
+    let o = tricons(&[&args[..], &["--config", &example, "--model", &model]].concat());
+    assert!(o.status.success(), "{}", crate::common::cli::stderr(&o));
     let both = lines(&out);
     assert_eq!(both.len(), 4);
     assert_eq!(both[..2], first[..]);
@@ -88,7 +91,7 @@ fn sigterm_drains_flushes_and_exits_zero() {
         stderr.read_to_string(&mut rest).ok();
         rest
     });
-    wait_for("two results", PATIENCE, || lines(&out).len() >= 2);
+    wait_for("a first result", PATIENCE, || !lines(&out).is_empty());
     let mut s = std::net::TcpStream::connect(&addr).unwrap();
     write!(s, "GET /health HTTP/1.1\r\n\r\n").unwrap();
     let mut health = String::new();
@@ -214,31 +217,4 @@ fn serve_and_record_reject_bad_sources_clearly() {
 
     let o = tricons(&["serve", "--recording", dir.path().join("nothing").to_str().unwrap(), "--no-listen"]);
     assert_clean_failure(&o, "nothing");
-}
-
-#[test]
-fn the_example_serve_config_is_valid() {
-    // docs/deploy/serve.example.json must parse: run it against a recording for one frame
-    // (its camera and model paths are a board's; the flags replace them).
-    let dir = tempfile::tempdir().unwrap();
-    let rec = demo_subset(dir.path(), 1, true);
-    let out = dir.path().join("o.jsonl");
-    let o = tricons(&[
-        "serve",
-        "--config",
-        &repo("docs/deploy/serve.example.json"),
-        "--recording",
-        rec.to_str().unwrap(),
-        "--rate",
-        "max",
-        "--masks",
-        "gt",
-        "--model",
-        &repo("models/tricons-pose.int8.json"),
-        "--no-listen",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", crate::common::cli::stderr(&o));
-    assert_eq!(lines(&out).len(), 1);
 }
