@@ -81,28 +81,12 @@ impl<C, D> FramePairer<C, D> {
     /// Adds a colour frame. Frames of one stream must come in time order; an
     /// older frame than the last one is discarded (counted).
     pub fn push_color(&mut self, frame: Timed<C>) {
-        if self.color.back().is_some_and(|b| frame.timestamp_s < b.timestamp_s) {
-            self.stats.dropped_color += 1;
-            return;
-        }
-        self.color.push_back(frame);
-        if self.color.len() > self.capacity {
-            self.color.pop_front();
-            self.stats.dropped_color += 1;
-        }
+        push_bounded(&mut self.color, frame, self.capacity, &mut self.stats.dropped_color);
     }
 
     /// Adds a depth frame (same rules as [`push_color`](Self::push_color)).
     pub fn push_depth(&mut self, frame: Timed<D>) {
-        if self.depth.back().is_some_and(|b| frame.timestamp_s < b.timestamp_s) {
-            self.stats.dropped_depth += 1;
-            return;
-        }
-        self.depth.push_back(frame);
-        if self.depth.len() > self.capacity {
-            self.depth.pop_front();
-            self.stats.dropped_depth += 1;
-        }
+        push_bounded(&mut self.depth, frame, self.capacity, &mut self.stats.dropped_depth);
     }
 
     /// The next pair, if one can be decided from what is queued. Call it after
@@ -150,6 +134,20 @@ impl<C, D> FramePairer<C, D> {
         self.stats.dropped_depth += self.depth.len() as u64;
         self.color.clear();
         self.depth.clear();
+    }
+}
+
+/// Appends `frame` unless it is older than the newest queued one; keeps at most
+/// `capacity` frames by dropping the oldest. Every discarded frame adds to `dropped`.
+fn push_bounded<T>(queue: &mut VecDeque<Timed<T>>, frame: Timed<T>, capacity: usize, dropped: &mut u64) {
+    if queue.back().is_some_and(|b| frame.timestamp_s < b.timestamp_s) {
+        *dropped += 1;
+        return;
+    }
+    queue.push_back(frame);
+    if queue.len() > capacity {
+        queue.pop_front();
+        *dropped += 1;
     }
 }
 
