@@ -16,7 +16,7 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use tricons::ops::ball_query::kernel::ball_query;
 use tricons::ops::{KnnIndex, PointsSoa, knn_brute_force};
-use tricons::synth::rng::Rng;
+use tricons::rng::Rng;
 
 /// `n` points on an object-sized ellipsoid surface (semi-axes 5, 8, 4 cm) 0.7 m away, 1 mm noise.
 fn object_cloud(n: usize, seed: u64) -> Vec<[f32; 3]> {

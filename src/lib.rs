@@ -58,8 +58,10 @@ pub mod pipeline;
 pub mod pose;
 pub mod quant;
 pub mod recording;
+pub mod rng;
 pub mod segment;
 pub mod synth;
+pub mod workers;
 
 pub use category::Category;
 pub use error::{Error, Result};

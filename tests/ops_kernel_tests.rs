@@ -9,7 +9,7 @@ use tricons::ops::{
     gather::kernel as gather, knn_brute_force, squared_distance, three_nn::kernel as nn,
     triangle::kernel::triangle_descriptor,
 };
-use tricons::synth::rng::Rng;
+use tricons::rng::Rng;
 
 /// Split a row-major tensor of the given shape into batch items.
 fn items<'a, T>(data: &'a [T], shape: &[usize]) -> Vec<&'a [T]> {
@@ -306,4 +306,59 @@ fn kernels_refuse_bad_indices_and_too_few_points() {
     let mut idx = vec![0i64; 4];
     assert!(matches!(furthest_point_sample(&[0.0; 9], 5, &mut idx), Err(OpError::BadLength { what: "out", .. })));
     assert!(err.to_string().contains("ThreeNN"));
+}
+
+/// Values with the cases a max fold must get right: NaN, both infinities, f32::MIN, -0.0.
+fn awkward(rng: &mut Rng, n: usize) -> Vec<f32> {
+    (0..n)
+        .map(|_| match rng.next_u64() % 16 {
+            0 => f32::NAN,
+            1 => f32::NEG_INFINITY,
+            2 => f32::INFINITY,
+            3 => f32::MIN,
+            4 => -0.0,
+            _ => (rng.next_u64() >> 40) as f32 / (1u64 << 23) as f32 * 4.0 - 2.0,
+        })
+        .collect()
+}
+
+#[test]
+fn reduce_max_axis_equals_the_fold_reference_bit_for_bit() {
+    use tricons::ops::reduce_max::kernel::{reduce_max_axis, reduce_max_axis_reference};
+    let mut rng = Rng::new(11);
+    for (outer, k, inner) in [(1, 1, 1), (3, 8, 64), (256, 16, 32), (2, 1, 5), (4, 7, 1), (5, 0, 3), (0, 4, 4)] {
+        let x = awkward(&mut rng, outer * k * inner);
+        let mut out = vec![0f32; outer * inner];
+        reduce_max_axis(&x, outer, k, inner, &mut out).unwrap();
+        let want = reduce_max_axis_reference(&x, outer, k, inner);
+        let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&out), bits(&want), "({outer}, {k}, {inner})");
+    }
+    // exact cases: the maximum, and the fold's start value for an all -inf column
+    let mut out = [0f32; 2];
+    reduce_max_axis(&[1.0, f32::NEG_INFINITY, 3.0, f32::NEG_INFINITY, 2.0, f32::NEG_INFINITY], 1, 3, 2, &mut out)
+        .unwrap();
+    assert_eq!(out, [3.0, f32::MIN]);
+    assert!(reduce_max_axis(&[0.0; 5], 1, 2, 2, &mut out).is_err(), "wrong input length");
+}
+
+#[test]
+fn bilinear_upsample_equals_its_reference_and_the_exact_taps() {
+    use tricons::ops::upsample::kernel::{upsample2x_plane, upsample2x_reference};
+    let mut rng = Rng::new(12);
+    let mut scratch = Vec::new();
+    for (h, w) in [(1, 1), (1, 5), (6, 1), (3, 4), (24, 24), (7, 13)] {
+        let x = awkward(&mut rng, h * w);
+        let mut out = vec![0f32; 4 * h * w];
+        upsample2x_plane(&x, h, w, &mut scratch, &mut out).unwrap();
+        let want = upsample2x_reference(&x, h, w);
+        let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&out), bits(&want), "{h}x{w}");
+    }
+    // a 2x2 ramp by hand: rows (0, 4) -> (0, 1, 3, 4); columns likewise
+    let mut out = [0f32; 16];
+    upsample2x_plane(&[0.0, 4.0, 8.0, 12.0], 2, 2, &mut scratch, &mut out).unwrap();
+    assert_eq!(&out[..4], &[0.0, 1.0, 3.0, 4.0]);
+    assert_eq!(&out[4..8], &[2.0, 3.0, 5.0, 6.0]);
+    assert_eq!(&out[12..], &[8.0, 9.0, 11.0, 12.0]);
 }

@@ -225,3 +225,49 @@ fn nan_depth_from_a_float_source_is_no_measurement() {
     assert!(DepthImage::from_metres(w, h, &metres[1..], 0.001).is_err(), "wrong length");
     assert!(DepthImage::from_metres(w, h, &metres, f64::NAN).is_err(), "NaN scale");
 }
+
+#[test]
+fn worker_threads_give_the_same_bits_as_one_thread() {
+    let one = shipped();
+    let three = shipped().with_threads(3).unwrap();
+    assert_eq!((one.threads(), three.threads()), (1, 3));
+    let rec = open_recording(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo")).unwrap();
+    for i in [0, 2] {
+        let frame = rec.read_frame(i).unwrap();
+        let masks = rec.read_annotations(i).unwrap().unwrap().instance_masks().unwrap();
+        let refs: Vec<&[bool]> = masks.iter().map(|m| m.as_slice()).collect();
+        assert!(refs.len() > 1, "the frame has several objects to spread");
+        assert_eq!(one.estimate(&frame, &refs, 3).unwrap(), three.estimate(&frame, &refs, 3).unwrap(), "frame {i}");
+    }
+}
+
+/// The load-time rewrite (ReduceMax -> ReduceMaxAxis, Resize -> BilinearUpsample2x) against
+/// the graph as exported, both run by tract on the fixture batch: every output the same bits.
+#[test]
+fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
+    use tract_onnx::prelude::*;
+    let est = shipped();
+    let plain = est.float_proto().unwrap();
+    let mut fast = plain.clone();
+    let report = tricons::pose::rewrite::rewrite(&mut fast);
+    assert_eq!((report.reduce_max, report.upsample), (6, 3), "the shipped graph's nodes");
+    let all = cases("pose_net");
+    let inputs: Vec<PoseInput> = all
+        .iter()
+        .map(|c| PoseInput {
+            rgb: c.get("rgb").f32().to_vec(),
+            pts: c.get("pts").f32().to_vec(),
+            choose: c.get("choose").i64().to_vec(),
+        })
+        .collect();
+    let run = |proto| {
+        let plan = est.plan_variant(proto).unwrap();
+        plan.run(est.input_tensors(&inputs).unwrap()).unwrap()
+    };
+    let (a, b) = (run(&plain), run(&fast));
+    assert_eq!(a.len(), b.len());
+    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        let bits = |t: &TValue| t.try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(x), bits(y), "output {k}");
+    }
+}

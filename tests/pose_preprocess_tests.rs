@@ -10,7 +10,7 @@ use tricons::pose::preprocess::{
     PreprocessConfig, build_input, crop_window, mask_bbox, prepare_instance, sample_indices,
 };
 use tricons::recording::open_recording;
-use tricons::synth::rng::Rng;
+use tricons::rng::Rng;
 
 fn shipped_config() -> PreprocessConfig {
     let card: serde_json::Value = serde_json::from_str(

@@ -4,7 +4,7 @@
 
 use serde_json::Value;
 use tricons::pose::preprocess::sample_indices;
-use tricons::synth::rng::{Rng, mix_seed};
+use tricons::rng::{Rng, mix_seed};
 
 fn fixture() -> Value {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/rng/sequences.json");

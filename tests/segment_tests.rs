@@ -8,7 +8,7 @@ use tricons::ops::roi_align::{PoolMode, RoiAlignParams, roi_align};
 use tricons::output::segments::{mask_to_rle, rle_to_mask};
 use tricons::segment::Segmenter;
 use tricons::segment::paste::paste_mask;
-use tricons::synth::rng::Rng;
+use tricons::rng::Rng;
 
 fn fixture(name: &str) -> Value {
     let path = format!("{}/tests/fixtures/segment/{name}", env!("CARGO_MANIFEST_DIR"));
@@ -287,4 +287,45 @@ fn frames_without_objects_run_and_follow_threshold_and_size() {
     seg.set_score_threshold(0.0);
     let small = tricons::ColorImage::new(320, 240);
     assert!(seg.segment(&small).unwrap().iter().all(|d| d.mask.len() == 320 * 240));
+}
+
+/// The score floor raised to the card's threshold before NMS and the mask head gives the
+/// same detections as the graph as exported filtered afterwards: labels, boxes and scores
+/// equal, masks equal off the pixels within 1e-5 of the mask threshold.
+#[test]
+fn raised_score_floor_keeps_exactly_the_detections_above_the_threshold() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    assert_eq!(seg.score_floor(), Some(0.05), "torchvision's box_score_thresh in the shipped graph");
+    let (threshold, mask_t) = (seg.card().score_threshold, seg.card().mask_threshold);
+    let mut kept_total = 0;
+    for image in ["tests/data/synthnocs-demo/000000_color.png", "tests/data/synthnocs-demo/000002_color.png"] {
+        let img = tricons::image_io::read_color_png(&root.join(image)).unwrap();
+        let raw = seg.detect_raw(&img).unwrap();
+        let above: Vec<usize> = (0..raw.scores.len()).filter(|&i| raw.scores[i] >= threshold).collect();
+        assert!(above.len() < raw.scores.len(), "{image}: some detections fall below the threshold");
+        let got = seg.segment(&img).unwrap();
+        assert_eq!(got.len(), above.len(), "{image}: detection count");
+        for (g, &i) in got.iter().zip(&above) {
+            assert_eq!(g.label, raw.labels[i], "{image}");
+            assert!((g.score - raw.scores[i]).abs() <= 1e-6, "{image}: score {} vs {}", g.score, raw.scores[i]);
+            let d = g.box_xyxy.iter().zip(&raw.boxes[i]).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+            assert!(d <= 1e-3, "{image}: box {:?} vs {:?}", g.box_xyxy, raw.boxes[i]);
+            let differing = g
+                .mask
+                .iter()
+                .zip(&raw.masks[i])
+                .filter(|(m, p)| **m != (**p >= mask_t) && (**p - mask_t).abs() > 1e-5)
+                .count();
+            assert_eq!(differing, 0, "{image}: mask pixels away from the threshold differ");
+        }
+        kept_total += got.len();
+    }
+    assert!(kept_total > 0);
+    // a graph without a softmax score floor is left alone
+    use tract_onnx::prelude::Framework;
+    let mut pose = tricons::ops::onnx_with_custom_ops()
+        .proto_model_for_path(root.join("models/tricons-pose.onnx"))
+        .unwrap();
+    assert_eq!(tricons::segment::rewrite::raise_score_floor(&mut pose, 0.5), Ok(None));
 }

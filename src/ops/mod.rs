@@ -16,7 +16,10 @@
 //!
 //! Two standard ONNX operators are registered too, for the Mask R-CNN graph:
 //! [`roi_align`] (`RoiAlign`, which tract lacks) and [`nms`] (`NonMaxSuppression`,
-//! replacing tract's pairwise one with a grid kernel).
+//! replacing tract's pairwise one with a grid kernel). Two more replace standard nodes
+//! tract runs slowly, put in by the pose loader's rewrite ([`crate::pose::rewrite`]):
+//! [`reduce_max`] (`ReduceMaxAxis` for a single-axis `ReduceMax`) and [`upsample`]
+//! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`).
 //!
 //! Kernels work on one batch item: points are `(n, 3)` row-major `f32`
 //! slices, features `(c, n)` row-major, indices `i64`. Squared distances are
@@ -32,17 +35,20 @@ pub mod nms;
 pub mod profile;
 pub mod qconv;
 pub mod qlinear;
+pub mod reduce_max;
 pub mod roi_align;
 pub mod three_nn;
 pub mod tract_glue;
 pub mod triangle;
+pub mod upsample;
 
 pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 
 /// Node types whose wall time [`profile`] accounts: the `ai.tricons` ones of the
 /// exported graph, the two standard operators implemented here (`RoiAlign`,
-/// `NonMaxSuppression`), then the int8 nodes of the quantization rewrite.
-pub const PROFILED_NODE_TYPES: [&str; 11] = [
+/// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
+/// replacements of the pose rewrite.
+pub const PROFILED_NODE_TYPES: [&str; 13] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -54,6 +60,8 @@ pub const PROFILED_NODE_TYPES: [&str; 11] = [
     "NonMaxSuppression",
     "QLinear",
     "QConv",
+    "ReduceMaxAxis",
+    "BilinearUpsample2x",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -77,6 +85,8 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("NonMaxSuppression", nms::onnx::parse);
     reg.insert("QLinear", qlinear::onnx::parse);
     reg.insert("QConv", qconv::onnx::parse);
+    reg.insert("ReduceMaxAxis", reduce_max::onnx::parse);
+    reg.insert("BilinearUpsample2x", upsample::onnx::parse);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

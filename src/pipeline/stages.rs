@@ -135,7 +135,7 @@ pub fn estimate_detections(
 
 impl Estimate for PoseStage {
     fn estimate(&mut self, frame: &SourceFrame, detections: &[Detection]) -> Result<Vec<PredInstance>> {
-        let seed = crate::synth::rng::mix_seed(&[self.seed, frame.seq]);
+        let seed = crate::rng::mix_seed(&[self.seed, frame.seq]);
         let (instances, skipped) = estimate_detections(&self.estimator, &frame.frame, detections, seed)?;
         for (k, why) in skipped {
             log::debug!("frame {} instance {k}: skipped ({why:?})", frame.id);

@@ -13,7 +13,7 @@ use crate::pose::card::{ModelCard, card_path_for};
 use crate::pose::preprocess::{PoseInput, PreprocessConfig, build_input, prepare_instance, sample_indices};
 use crate::quant::rewrite::ApplyReport;
 use crate::quant::{ModelKind, QuantProfile};
-use crate::synth::rng::Rng;
+use crate::rng::Rng;
 
 /// The pose of one instance as the network estimates it.
 #[derive(Clone, Debug, PartialEq)]
@@ -49,8 +49,11 @@ pub struct PreparedFrame {
     pub slots: Vec<std::result::Result<usize, Skipped>>,
 }
 
-/// A loaded pose model: card, preprocessing and an optimised tract plan with a symbolic
-/// instance batch (all instances of a frame run together).
+/// A loaded pose model: card, preprocessing and an optimised tract plan of one instance
+/// with every dimension concrete (tract's fast paths need it: broadcast arithmetic, lazy
+/// im2col and bias/BatchNorm fusion all fall back with a symbolic batch). A frame's
+/// instances run on [`Self::with_threads`] worker threads sharing that plan (one tract
+/// state each).
 ///
 /// Load once, estimate per frame:
 ///
@@ -80,8 +83,11 @@ pub struct PoseEstimator {
     card: ModelCard,
     card_path: PathBuf,
     cfg: PreprocessConfig,
+    /// The graph at batch 1, every dimension concrete.
     plan: Arc<TypedRunnableModel>,
     quantized: Option<ApplyReport>,
+    /// Worker threads for a frame's instances (`None`: the calling thread).
+    pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 impl std::fmt::Debug for PoseEstimator {
@@ -134,12 +140,35 @@ impl PoseEstimator {
                 Some(crate::quant::rewrite::apply(&mut proto, p).map_err(|m| Error::model(path, m))?)
             }
         };
+        let kernels = crate::pose::rewrite::rewrite(&mut proto);
+        log::debug!("{}: {kernels:?}", onnx_path.display());
         let inference = onnx.model_for_proto_model(&proto).map_err(model_err)?;
-        let typed = inference.into_typed().map_err(model_err)?;
         let cfg = card.preprocess_config();
-        check_inputs(&typed, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
-        let plan = optimise(typed).map_err(model_err)?;
-        Ok(PoseEstimator { card, card_path, cfg, plan, quantized })
+        // the graph as exported (symbolic batch) is checked against the card, then typed
+        // again with every input dimension concrete (one instance)
+        let symbolic = inference.clone().into_typed().map_err(model_err)?;
+        check_inputs(&symbolic, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
+        drop(symbolic);
+        let plan = optimise(concrete_batch1(inference, &cfg).map_err(model_err)?).map_err(model_err)?;
+        Ok(PoseEstimator { card, card_path, cfg, plan, quantized, pool: None })
+    }
+
+    /// Run a frame's instances on `threads` worker threads (1: on the calling thread, the
+    /// default). Outcomes do not depend on the count: each instance runs alone.
+    pub fn with_threads(mut self, threads: usize) -> Result<PoseEstimator> {
+        self.set_threads(threads)?;
+        Ok(self)
+    }
+
+    /// Change the worker thread count ([`Self::with_threads`]).
+    pub fn set_threads(&mut self, threads: usize) -> Result<()> {
+        self.pool = crate::workers::pool(threads, "pose")?;
+        Ok(())
+    }
+
+    /// Worker threads a frame's instances run on.
+    pub fn threads(&self) -> usize {
+        self.pool.as_ref().map_or(1, |p| p.current_num_threads())
     }
 
     /// The float graph as loaded (hash-checked), for calibration.
@@ -150,7 +179,8 @@ impl PoseEstimator {
             .map_err(|e| Error::model(self.card.onnx_path(&self.card_path), format!("{e:#}")))
     }
 
-    /// A runnable plan of another version of this graph (e.g. with calibration outputs).
+    /// A runnable plan of another version of this graph (e.g. with calibration outputs),
+    /// as given (symbolic batch, no [`crate::pose::rewrite`]).
     pub fn plan_variant(&self, proto: &ModelProto) -> Result<Arc<TypedRunnableModel>> {
         let err = |e: TractError| Error::model(self.card.onnx_path(&self.card_path), format!("{e:#}"));
         crate::ops::onnx_with_custom_ops()
@@ -226,31 +256,39 @@ impl PoseEstimator {
         Ok(prepared)
     }
 
-    /// Run the graph on prepared inputs (one batch), decoding R, t, s and keypoints.
+    /// Run the graph on prepared inputs, one instance per run, on the worker threads
+    /// (in input order), decoding R, t, s and keypoints.
     pub fn run_inputs(&self, inputs: &[PoseInput]) -> Result<Vec<InstanceOutcome>> {
-        if inputs.is_empty() {
-            return Ok(Vec::new());
+        use rayon::prelude::*;
+        let run_one = |x: &PoseInput| -> Result<InstanceOutcome> {
+            let tensors = self.input_tensors(std::slice::from_ref(x))?;
+            let out = self.plan.run(tensors).map_err(|e| Error::Inference(format!("{e:#}")))?;
+            decode_outputs(&out, 1)?.pop().ok_or_else(|| Error::Inference("the graph returned no instance".into()))
+        };
+        match &self.pool {
+            Some(pool) if inputs.len() > 1 => pool.install(|| inputs.par_iter().map(run_one).collect()),
+            _ => inputs.iter().map(run_one).collect(),
         }
-        let tensors = self.input_tensors(inputs)?;
-        let out = self.plan.run(tensors).map_err(|e| Error::Inference(format!("{e:#}")))?;
-        decode_outputs(&out, inputs.len())
     }
 
-    /// Run the graph once on `inputs` timing every node: wall time per operator name
-    /// (tract's optimised op, e.g. `Conv`, `OptMatMul`, `ThreeNN`), largest first.
+    /// Run the graph on each of `inputs` (one at a time, on the calling thread) timing
+    /// every node: wall time per operator name (tract's optimised op, e.g. `Conv`,
+    /// `OptMatMul`, `ThreeNN`), summed over the inputs, largest first.
     pub fn profile_nodes(&self, inputs: &[PoseInput]) -> Result<Vec<(String, std::time::Duration)>> {
-        let tensors = self.input_tensors(inputs)?;
         let err = |e: TractError| Error::Inference(format!("{e:#}"));
-        let mut state = tract_onnx::tract_core::plan::SimpleState::new(&self.plan).map_err(err)?;
         let mut per_op: std::collections::BTreeMap<String, std::time::Duration> = Default::default();
-        state
-            .run_plan_with_eval(tensors, |ctx, op_state, node, input| {
-                let start = std::time::Instant::now();
-                let out = tract_onnx::tract_core::plan::eval(ctx, op_state, node, input);
-                *per_op.entry(node.op().name().to_string()).or_default() += start.elapsed();
-                out
-            })
-            .map_err(err)?;
+        for x in inputs {
+            let tensors = self.input_tensors(std::slice::from_ref(x))?;
+            let mut state = tract_onnx::tract_core::plan::SimpleState::new(&self.plan).map_err(err)?;
+            state
+                .run_plan_with_eval(tensors, |ctx, op_state, node, input| {
+                    let start = std::time::Instant::now();
+                    let out = tract_onnx::tract_core::plan::eval(ctx, op_state, node, input);
+                    *per_op.entry(node.op().name().to_string()).or_default() += start.elapsed();
+                    out
+                })
+                .map_err(err)?;
+        }
         let mut v: Vec<_> = per_op.into_iter().collect();
         v.sort_by_key(|x| std::cmp::Reverse(x.1));
         Ok(v)
@@ -274,6 +312,17 @@ impl PoseEstimator {
             Tensor::from_shape(&[b, n], &choose).map_err(tensor_err)?.into_tvalue(),
         ])
     }
+}
+
+/// `model` with its three inputs fixed to one instance: rgb (1, 3, S, S), pts (1, N, 3),
+/// choose (1, N).
+fn concrete_batch1(model: InferenceModel, cfg: &PreprocessConfig) -> TractResult<TypedModel> {
+    let (n, s) = (cfg.n_points, cfg.crop_size);
+    model
+        .with_input_fact(0, f32::fact([1, 3, s, s]).into())?
+        .with_input_fact(1, f32::fact([1, n, 3]).into())?
+        .with_input_fact(2, i64::fact([1, n]).into())?
+        .into_typed()
 }
 
 fn optimise(typed: TypedModel) -> TractResult<Arc<TypedRunnableModel>> {

@@ -1,12 +1,14 @@
 //! TriCons-Pose inference: inputs from frames and masks, the exported graph in tract.
 //!
 //! [`card`] reads the model card that drives every size and constant, [`preprocess`]
-//! builds the network inputs exactly as training did, [`estimator`] runs the graph
-//! ([`PoseEstimator`]).
+//! builds the network inputs exactly as training did, [`rewrite`] swaps the standard
+//! nodes tract runs slowly for exact `ai.tricons` kernels at load, [`estimator`] runs
+//! the graph ([`PoseEstimator`]).
 
 pub mod card;
 pub mod estimator;
 pub mod preprocess;
+pub mod rewrite;
 
 pub use card::ModelCard;
 pub use estimator::{InstanceOutcome, PoseEstimate, PoseEstimator, PreparedFrame, Skipped};

@@ -6,7 +6,7 @@
 //! valid pixels, uses the project's own seeded RNG.
 
 use crate::frame::{ColorImage, DepthImage, Intrinsics};
-use crate::synth::rng::Rng;
+use crate::rng::Rng;
 
 /// AG-Pose's crop sizes are multiples of this (pixels).
 pub const CROP_STEP_PX: usize = 40;

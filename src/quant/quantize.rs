@@ -146,7 +146,7 @@ fn calibrate_pose(
         };
         if let Some(masks) = masks {
             let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
-            let prepared = estimator.prepare(&frame, &refs, crate::synth::rng::mix_seed(&[job.seed, i as u64]))?;
+            let prepared = estimator.prepare(&frame, &refs, crate::rng::mix_seed(&[job.seed, i as u64]))?;
             // One instance per run: the statistics see each object as the runtime does.
             for input in prepared.inputs.chunks(1) {
                 let tensors = estimator.input_tensors(input)?;

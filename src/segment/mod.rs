@@ -67,13 +67,20 @@ struct OutputSlots {
 pub struct Segmenter {
     card: SegmenterCard,
     onnx_path: PathBuf,
-    model: InferenceModel,
+    /// The graph after the load-time rewrites (and the int8 profile), score floor as exported.
+    proto: ModelProto,
+    /// The graph's own detection score floor, when found (raised to the card's threshold
+    /// in the plans [`Segmenter::segment`] runs).
+    score_floor: Option<f32>,
     input_index: usize,
     slots: OutputSlots,
     report: RewriteReport,
     sha256: String,
     quantized: Option<ApplyReport>,
-    plans: Mutex<HashMap<(usize, usize), Arc<TypedRunnableModel>>>,
+    /// tract's matrix-product executor for this model's runs (`--threads`).
+    executor: tract_linalg::multithread::Executor,
+    /// Plans per (width, height, raised score floor bits).
+    plans: Mutex<HashMap<(usize, usize, Option<u32>), Arc<TypedRunnableModel>>>,
 }
 
 impl std::fmt::Debug for Segmenter {
@@ -188,25 +195,57 @@ impl Segmenter {
             None if inputs.len() == 1 => 0,
             None => return Err(err(format!("expected one image input, the graph has {inputs:?}"))),
         };
-        let model = onnx.model_for_proto_model(&proto).map_err(|e| err(format!("{e:#}")))?;
+        // parse once now so that an unloadable graph fails at load, not at the first frame
+        onnx.model_for_proto_model(&proto).map_err(|e| err(format!("{e:#}")))?;
+        let score_floor = rewrite::score_floor(&proto).map_err(&err)?;
         log::info!(
-            "{}: {} If inlined, {} Slice clamped, masks {}",
+            "{}: {} If inlined, {} Slice clamped, masks {}, score floor {}",
             onnx_path.display(),
             report.ifs_inlined,
             report.slices_clamped,
-            if report.pasted_output.is_some() { "pasted in Rust" } else { "from the graph" }
+            if report.pasted_output.is_some() { "pasted in Rust" } else { "from the graph" },
+            match score_floor {
+                Some(f) => format!("{f} raised to the card's {} before NMS and the mask head", card.score_threshold),
+                None => "not found (all detections reach the mask head)".into(),
+            }
         );
         Ok(Segmenter {
             card,
             onnx_path: onnx_path.to_path_buf(),
-            model,
+            proto,
+            score_floor,
             input_index,
             slots,
             report,
             sha256,
             quantized,
+            executor: tract_linalg::multithread::Executor::SingleThread,
             plans: Mutex::new(HashMap::new()),
         })
+    }
+
+    /// Split the graph's matrix products and convolutions over `threads` workers (1: the
+    /// calling thread only, the default). Results do not depend on the count.
+    pub fn with_threads(mut self, threads: usize) -> Result<Segmenter> {
+        self.set_threads(threads)?;
+        Ok(self)
+    }
+
+    /// Change the worker thread count ([`Self::with_threads`]).
+    pub fn set_threads(&mut self, threads: usize) -> Result<()> {
+        self.executor = match crate::workers::pool(threads, "segment")? {
+            None => tract_linalg::multithread::Executor::SingleThread,
+            Some(pool) => tract_linalg::multithread::Executor::MultiThread(pool),
+        };
+        Ok(())
+    }
+
+    /// Worker threads of the graph's products.
+    pub fn threads(&self) -> usize {
+        match &self.executor {
+            tract_linalg::multithread::Executor::MultiThread(pool) => pool.current_num_threads(),
+            _ => 1,
+        }
     }
 
     /// The card in use.
@@ -229,14 +268,33 @@ impl Segmenter {
         &self.report
     }
 
-    /// The optimised plan for `width x height` images (built on first use, then cached).
-    fn plan(&self, width: usize, height: usize) -> Result<Arc<TypedRunnableModel>> {
+    /// The graph's own detection score floor (torchvision's `box_score_thresh`), if found.
+    pub fn score_floor(&self) -> Option<f32> {
+        self.score_floor
+    }
+
+    /// The optimised plan for `width x height` images (built on first use, then cached);
+    /// `min_score`: the score floor raised to it ([`rewrite::raise_score_floor`]), or the
+    /// graph's own floor (`None`).
+    fn plan(&self, width: usize, height: usize, min_score: Option<f32>) -> Result<Arc<TypedRunnableModel>> {
+        let min_score = min_score.filter(|&s| self.score_floor.is_some_and(|f| s > f));
+        let key = (width, height, min_score.map(f32::to_bits));
         let mut plans = self.plans.lock().map_err(|_| Error::Inference("segmenter plan cache poisoned".into()))?;
-        if let Some(p) = plans.get(&(width, height)) {
+        if let Some(p) = plans.get(&key) {
             return Ok(p.clone());
         }
-        let plan = self.plan_for(self.model.clone(), width, height)?;
-        plans.insert((width, height), plan.clone());
+        let err = |m: String| Error::model(&self.onnx_path, m);
+        let model = match min_score {
+            None => crate::ops::onnx_with_custom_ops().model_for_proto_model(&self.proto),
+            Some(s) => {
+                let mut proto = self.proto.clone();
+                rewrite::raise_score_floor(&mut proto, s).map_err(err)?;
+                crate::ops::onnx_with_custom_ops().model_for_proto_model(&proto)
+            }
+        }
+        .map_err(|e| err(format!("{e:#}")))?;
+        let plan = self.plan_for(model, width, height)?;
+        plans.insert(key, plan.clone());
         Ok(plan)
     }
 
@@ -275,9 +333,10 @@ impl Segmenter {
         self.quantized.as_ref()
     }
 
-    /// Build the plan for `width x height` now (loading is otherwise lazy).
+    /// Build the plan [`Self::segment`] runs for `width x height` now (loading is
+    /// otherwise lazy).
     pub fn prepare(&self, width: usize, height: usize) -> Result<()> {
-        self.plan(width, height).map(|_| ())
+        self.plan(width, height, Some(self.card.score_threshold)).map(|_| ())
     }
 
     /// The image tensor `(3, H, W)` as the card says.
@@ -298,12 +357,14 @@ impl Segmenter {
 
     /// Every detection the graph returns (its own score floor only), masks as probabilities.
     pub fn detect_raw(&self, image: &ColorImage) -> Result<RawDetections> {
-        self.detect(image, f32::NEG_INFINITY)
+        self.detect(image, None)
     }
 
-    /// Detections scoring at least the card's threshold, with thresholded masks.
+    /// Detections scoring at least the card's threshold, with thresholded masks. The graph
+    /// runs with its score floor raised to that threshold, so NMS and the mask head only
+    /// work on what is kept (the same detections as filtering the unchanged graph's).
     pub fn segment(&self, image: &ColorImage) -> Result<Vec<SegInstance>> {
-        let raw = self.detect(image, self.card.score_threshold)?;
+        let raw = self.detect(image, Some(self.card.score_threshold))?;
         let (w, h) = (image.width as usize, image.height as usize);
         let t = self.card.mask_threshold;
         Ok((0..raw.scores.len())
@@ -322,15 +383,17 @@ impl Segmenter {
             .collect())
     }
 
-    fn detect(&self, image: &ColorImage, min_score: f32) -> Result<RawDetections> {
+    fn detect(&self, image: &ColorImage, min_score: Option<f32>) -> Result<RawDetections> {
         let (w, h) = (image.width as usize, image.height as usize);
         if w == 0 || h == 0 || image.data.len() != w * h * 3 {
             return Err(Error::InvalidArgument(format!("image {w}x{h} with {} bytes", image.data.len())));
         }
-        let plan = self.plan(w, h)?;
+        let plan = self.plan(w, h, min_score)?;
+        let min_score = min_score.unwrap_or(f32::NEG_INFINITY);
         let mut inputs: TVec<TValue> = tvec![];
         inputs.push(self.input_tensor(image).into());
-        let out = plan.run(inputs).map_err(|e| Error::Inference(format!("{e:#}")))?;
+        let out = tract_linalg::multithread::multithread_tract_scope(self.executor.clone(), || plan.run(inputs))
+            .map_err(|e| Error::Inference(format!("{e:#}")))?;
         let view = |i: usize, what: &str| -> Result<&[f32]> {
             out[i]
                 .try_as_plain_ram()

@@ -259,3 +259,94 @@ fn clamp_slices(graph: &mut GraphProto) -> usize {
     graph.node = nodes;
     count
 }
+
+/// Ops a score tensor may pass through between the class `Softmax` and the score floor.
+const SCORE_PATH_OPS: [&str; 7] = ["Reshape", "Slice", "Flatten", "Gather", "Squeeze", "Unsqueeze", "Identity"];
+
+/// A scalar f32 constant (initializer or `Constant` node) by name.
+fn constant_f32_scalar(graph: &GraphProto, name: &str) -> Option<f32> {
+    let t = graph.initializer.iter().find(|t| t.name == name).or_else(|| {
+        graph
+            .node
+            .iter()
+            .find(|n| n.op_type == "Constant" && n.output.first().is_some_and(|o| o == name))
+            .and_then(|n| attr(n, "value"))
+            .and_then(|a| a.t.as_ref())
+    })?;
+    if t.data_type != tensor_proto::DataType::Float as i32 || t.dims.iter().product::<i64>() != 1 {
+        return None;
+    }
+    match (t.float_data.first(), t.raw_data.get(..4)) {
+        (Some(&v), _) => Some(v),
+        (None, Some(b)) => Some(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+        _ => None,
+    }
+}
+
+/// The graph's detection score floor: the one `Greater(scores, c)` with a scalar f32
+/// constant `c` whose scores come from a `Softmax` (torchvision's
+/// `postprocess_detections`: `scores > box_score_thresh`, before NMS, the top-k and the
+/// mask head). Returns the node index and `c`.
+fn find_score_floor(graph: &GraphProto) -> Result<Option<(usize, f32)>, String> {
+    let producers: HashMap<&str, &NodeProto> =
+        graph.node.iter().flat_map(|n| n.output.iter().map(move |o| (o.as_str(), n))).collect();
+    let from_softmax = |start: &str| {
+        let mut name = start.to_string();
+        for _ in 0..16 {
+            match producers.get(name.as_str()) {
+                Some(p) if p.op_type == "Softmax" => return true,
+                Some(p) if SCORE_PATH_OPS.contains(&p.op_type.as_str()) && !p.input.is_empty() => {
+                    name = p.input[0].clone()
+                }
+                _ => return false,
+            }
+        }
+        false
+    };
+    let found: Vec<(usize, f32)> = graph
+        .node
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| n.op_type == "Greater" && n.input.len() == 2 && from_softmax(&n.input[0]))
+        .filter_map(|(i, n)| constant_f32_scalar(graph, &n.input[1]).map(|c| (i, c)))
+        .collect();
+    match found.as_slice() {
+        [] => Ok(None),
+        [one] => Ok(Some(*one)),
+        many => Err(format!(
+            "{} score floors (Greater of softmax scores and a constant) found; expected one",
+            many.len()
+        )),
+    }
+}
+
+/// Raise the graph's detection score floor to `min_score` so that everything after it
+/// (per-class NMS, the top-k, the box decoding of the kept ones and the mask head) only
+/// sees detections the card keeps. Detections scoring at least `min_score` are exactly
+/// those of the unchanged graph: a lower-scoring box never suppresses a higher one in
+/// NMS, and the top-k is by score. `Greater(s, c)` becomes `Greater(s, next_down(min_score))`,
+/// which is `s >= min_score`, the card's rule. Returns the floor found (`None`: no floor
+/// in the graph, nothing changed); a floor already at or above `min_score` is kept.
+pub fn raise_score_floor(model: &mut ModelProto, min_score: f32) -> Result<Option<f32>, String> {
+    let graph = model.graph.as_mut().ok_or("the file holds no graph")?;
+    let Some((index, floor)) = find_score_floor(graph)? else { return Ok(None) };
+    let raised = min_score.next_down();
+    if !raised.is_finite() || raised <= floor {
+        return Ok(Some(floor));
+    }
+    let name = format!("tricons.score_floor.{index}");
+    graph.initializer.push(TensorProto {
+        name: name.clone(),
+        data_type: tensor_proto::DataType::Float as i32,
+        float_data: vec![raised],
+        ..Default::default()
+    });
+    graph.node[index].input[1] = name;
+    Ok(Some(floor))
+}
+
+/// The graph's detection score floor (see [`raise_score_floor`]), if it has one.
+pub fn score_floor(model: &ModelProto) -> Result<Option<f32>, String> {
+    let graph = model.graph.as_ref().ok_or("the file holds no graph")?;
+    Ok(find_score_floor(graph)?.map(|(_, c)| c))
+}

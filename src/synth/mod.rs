@@ -7,11 +7,10 @@
 //! - [`raster`]: the z-buffer rasterizer and G-buffer;
 //! - [`shading`]: materials, procedural textures, lighting;
 //! - [`sensor`]: RealSense-like depth noise and colour noise;
-//! - [`rng`]: the deterministic RNG.
+//! - the deterministic RNG is [`crate::rng`] (shared with the runtime's point sampler).
 
 pub mod mesh;
 pub mod raster;
-pub mod rng;
 pub mod scene;
 pub mod sensor;
 pub mod shading;
@@ -26,7 +25,7 @@ use crate::recording::manifest::Manifest;
 use crate::recording::writer::{RecordingWriter, write_frame_files};
 use raster::NO_ITEM;
 use rayon::prelude::*;
-use rng::Rng;
+use crate::rng::Rng;
 use std::path::Path;
 use std::str::FromStr;
 

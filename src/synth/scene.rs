@@ -3,7 +3,7 @@
 //! table looking at the object cluster.
 
 use super::mesh::TriMesh;
-use super::rng::Rng;
+use crate::rng::Rng;
 use super::shading::{Light, Lighting, Material, Pattern, hsv, random_color};
 use super::shapes::{ObjectModel, generate_object};
 use crate::category::Category;

@@ -2,7 +2,7 @@
 //! dropouts, plus colour noise. See docs/synthnocs.md for the model.
 
 use super::raster::GBuffer;
-use super::rng::Rng;
+use crate::rng::Rng;
 use crate::frame::{ColorImage, DepthImage};
 
 /// Closest measurable depth, metres.

@@ -1,7 +1,7 @@
 //! Materials with procedural textures, and the lighting model (ambient plus
 //! directional Lambert lights with a little Blinn-Phong specular, two-sided).
 
-use super::rng::Rng;
+use crate::rng::Rng;
 
 /// A procedural texture pattern, evaluated in an item's texture coordinates.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -156,7 +156,7 @@ fn the_pose_service_publishes_what_the_estimator_gives_in_order() {
         let f = source.next_frame().unwrap().unwrap();
         let detections =
             tricons::pipeline::stages::detections_from_annotations(f.annotations.as_ref().unwrap()).unwrap();
-        let seed = tricons::synth::rng::mix_seed(&[7, f.seq]);
+        let seed = tricons::rng::mix_seed(&[7, f.seq]);
         let (direct, _) =
             tricons::pipeline::stages::estimate_detections(&estimator, &f.frame, &detections, seed).unwrap();
         assert!(!direct.is_empty());

@@ -7,9 +7,13 @@ measurement) and optionally ``<id>_gt.json`` with an 8-bit instance mask and a
 
 PNGs are decoded by a small pure-numpy decoder (:func:`read_png`): zlib
 inflate plus PNG unfiltering (all five filter types). It returns 16-bit
-samples exactly (Pillow truncates 48-bit RGB to 8 bits, OpenCV swaps to BGR),
-needs no image library and checks colour type and bit depth against what the
-format says. Every error is a :class:`RecordingError` naming the file.
+samples exactly (Pillow truncates 48-bit RGB to 8 bits, OpenCV swaps to BGR)
+and checks colour type and bit depth against what the format says. After the
+chunk and header checks, the formats Pillow decodes exactly (8-bit gray/RGB/
+RGBA, 16-bit gray) go through Pillow when it is installed, 20-50x faster than
+the numpy unfiltering (training decodes every frame once); the 16-bit RGB
+NOCS maps always take the numpy path. Every error is a :class:`RecordingError`
+naming the file.
 """
 
 from __future__ import annotations
@@ -62,33 +66,63 @@ def _unfilter_wavefront(x: np.ndarray, ftypes: np.ndarray) -> np.ndarray:
 
     Pixel (r, c) depends on (r, c-1), (r-1, c) and (r-1, c-1), so all pixels
     with the same r + c can be decoded at once. The image is skewed so that an
-    anti-diagonal is a column: S[r + 1, d + 2] = pixel (r, d - r); row 0 and
-    columns 0, 1 are zero padding (PNG's "outside the image = 0").
+    anti-diagonal is a contiguous row: S[d + 2, r + 1] = pixel (r, d - r); row
+    0, 1 and column 0 are zero padding (PNG's "outside the image = 0").
     """
     h, w, bpp = x.shape
     nd = h + w - 1
     rows = np.arange(h)[:, None]
     cols = rows + np.arange(w)[None, :]  # d = r + c
-    sx = np.zeros((h + 1, nd + 2, bpp), np.int16)
-    sx[rows + 1, cols + 2] = x
+    sx = np.zeros((nd + 2, h + 1, bpp), np.int16)
+    sx[cols + 2, rows + 1] = x
     so = np.zeros_like(sx)
-    ft = ftypes.astype(np.int16)[:, None]  # (H, 1)
+    ft = ftypes.astype(np.int16)[:, None, None]  # (H, 1, 1)
+    is_sub, is_up, is_avg, is_paeth = (ft == 1)[:, 0], (ft == 2)[:, 0], (ft == 3)[:, 0], (ft == 4)[:, 0]
     for d in range(nd):
         lo, hi = max(0, d - w + 1), min(h - 1, d)
-        r0, r1 = lo + 1, hi + 2  # rows in S
-        a = so[r0:r1, d + 1]  # left: (r, c-1) -> column d-1 (+2 padding)
-        b = so[r0 - 1 : r1 - 1, d + 1]  # up: (r-1, c) -> column d-1
-        c = so[r0 - 1 : r1 - 1, d]  # up-left: (r-1, c-1) -> column d-2
-        f = ft[lo : hi + 1]
+        r0, r1 = lo + 1, hi + 2  # columns in S
+        a = so[d + 1, r0:r1]  # left: (r, c-1) -> diagonal d-1 (+2 padding)
+        b = so[d + 1, r0 - 1 : r1 - 1]  # up: (r-1, c) -> diagonal d-1
+        c = so[d, r0 - 1 : r1 - 1]  # up-left: (r-1, c-1) -> diagonal d-2
+        rs = slice(lo, hi + 1)
         pa = np.abs(b - c)
         pb = np.abs(a - c)
         pc = np.abs(a + b - 2 * c)
         paeth = np.where((pa <= pb) & (pa <= pc), a, np.where(pb <= pc, b, c))
         pred = np.where(
-            f == 1, a, np.where(f == 2, b, np.where(f == 3, (a + b) >> 1, np.where(f == 4, paeth, 0)))
+            is_paeth[rs], paeth,
+            np.where(is_sub[rs], a, np.where(is_up[rs], b, np.where(is_avg[rs], (a + b) >> 1, 0))),
         )
-        so[r0:r1, d + 2] = (sx[r0:r1, d + 2] + pred) & 0xFF
-    return so[rows + 1, cols + 2].astype(np.uint8)
+        so[d + 2, r0:r1] = (sx[d + 2, r0:r1] + pred) & 0xFF
+    return so[cols + 2, rows + 1].astype(np.uint8)
+
+
+#: (colour, bit depth) -> (Pillow mode, dtype) for the formats Pillow decodes exactly.
+_PIL_EXACT = {("gray", 8): ("L", np.uint8), ("rgb", 8): ("RGB", np.uint8), ("rgba", 8): ("RGBA", np.uint8),
+              ("gray", 16): ("I;16", np.uint16)}
+
+
+def _decode_with_pillow(data: bytes, color: str, depth: int, width: int, height: int) -> np.ndarray | None:
+    """Pixels by Pillow for the formats it decodes exactly, else None (numpy path)."""
+    want = _PIL_EXACT.get((color, depth))
+    if want is None:
+        return None
+    try:
+        import io
+
+        from PIL import Image
+    except ImportError:
+        return None
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            if im.mode != want[0] or im.size != (width, height):
+                return None
+            arr = np.asarray(im)
+    except Exception:  # anything Pillow refuses: the numpy path gives the precise error
+        return None
+    if arr.dtype != want[1]:
+        return None
+    return np.ascontiguousarray(arr)
 
 
 @dataclass
@@ -142,6 +176,9 @@ def decode_png(data: bytes, name: str = "<bytes>") -> PngImage:
     if interlace != 0:
         raise RecordingError(f"{name}: interlaced PNGs are not supported")
     color, channels = _COLOR_TYPES[ctype_id]
+    fast = _decode_with_pillow(data, color, depth, width, height)
+    if fast is not None:
+        return PngImage(width, height, color, depth, fast)
     bpp = channels * depth // 8
     stride = width * bpp
     try:

@@ -118,6 +118,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--grad-clip", type=float, default=0.0, help="clip the gradient norm (0: off)")
     p.add_argument("--cache-dir", default=None, help="keep preprocessed instances here as .npz (optional)")
     p.add_argument("--no-color-jitter", action="store_true")
+    p.add_argument("--init-from", default=None,
+                   help="start from these weights (a checkpoint.pt or model.pt of the same configuration) with a "
+                        "fresh optimiser and schedule: fine-tuning on new data; ignored with --resume")
+    p.add_argument("--keep-cycle-ends", action="store_true",
+                   help="also keep model-step<N>.pt at the end of every learning-rate cycle (lowest rate)")
     args = p.parse_args(argv)
     if args.epochs < 1 or args.batch_size < 1:
         p.error("--epochs and --batch-size must be positive")
@@ -229,6 +234,12 @@ def train(
         if step_in_epoch >= steps_per_epoch:
             epoch, step_in_epoch = epoch + 1, 0
         print(f"resumed from {ckpt_path}: epoch {epoch}, step {step}", flush=True)
+    elif args.init_from:
+        init = torch.load(args.init_from, map_location=device, weights_only=False)
+        if init.get("config") != cfg.to_dict():
+            raise SystemExit(f"--init-from: {args.init_from} was written with a different model configuration")
+        model.load_state_dict(init["model"])
+        print(f"weights from {args.init_from} (its step {init.get('step')}); fresh optimiser and schedule", flush=True)
     run_info = {"model_config": cfg.to_dict(), "args": vars(args), "n_samples": len(ds),
                 "steps_per_epoch": steps_per_epoch, "cycle_half_steps": cycle, "device": str(device),
                 "torch_threads": torch.get_num_threads()}
@@ -295,6 +306,9 @@ def train(
                     break
                 if args.ckpt_every > 0 and step % args.ckpt_every == 0:
                     checkpoint()
+                if args.keep_cycle_ends and step % (2 * cycle) == 0:
+                    save_atomic({"config": cfg.to_dict(), "model": model.state_dict(), "epoch": epoch, "step": step},
+                                out / f"model-step{step}.pt")
                 t_data = time.time()
             if not stop:
                 epoch, step_in_epoch = epoch + 1, 0

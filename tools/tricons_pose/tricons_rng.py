@@ -1,6 +1,6 @@
 """The runtime's random number generator and point sampler, in Python.
 
-A port of ``src/synth/rng.rs`` (SplitMix64 seeding xoshiro256**, ``mix_seed``)
+A port of ``src/rng.rs`` (SplitMix64 seeding xoshiro256**, ``mix_seed``)
 and of ``sample_indices`` in ``src/pose/preprocess.rs``, so that the PyTorch
 evaluation can draw exactly the points ``tricons replay`` draws
 (``python -m tricons_pose.predict --sampler tricons``) and the two runtimes
@@ -33,7 +33,7 @@ def splitmix64(state: int) -> tuple[int, int]:
 
 
 def mix_seed(words: Sequence[int]) -> int:
-    """Mixes several 64-bit words into one seed (``tricons::synth::rng::mix_seed``)."""
+    """Mixes several 64-bit words into one seed (``tricons::rng::mix_seed``)."""
     state, acc = MIX_SEED_INIT, 0
     for w in words:
         state ^= w & MASK64
@@ -43,7 +43,7 @@ def mix_seed(words: Sequence[int]) -> int:
 
 
 class TriconsRng:
-    """xoshiro256** seeded by SplitMix64 (``tricons::synth::rng::Rng``)."""
+    """xoshiro256** seeded by SplitMix64 (``tricons::rng::Rng``)."""
 
     def __init__(self, seed: int):
         st, s = seed & MASK64, []

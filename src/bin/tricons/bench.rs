@@ -10,10 +10,10 @@ use tricons::atomic::write_atomic;
 use tricons::ops::profile;
 use tricons::pose::PoseEstimator;
 use tricons::recording::open_recording;
-use tricons::synth::rng::mix_seed;
+use tricons::rng::mix_seed;
 
 use crate::progress;
-use crate::replay::{DEFAULT_MODEL, DEFAULT_RECORDING};
+use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING};
 
 /// Arguments of `tricons bench`.
 #[derive(clap::Args)]
@@ -21,10 +21,14 @@ use crate::replay::{DEFAULT_MODEL, DEFAULT_RECORDING};
     tricons bench                                        # shipped model, demo recording\n  \
     tricons bench --model data/models/tricons-pose-paper.card.json --runs 5 --json data/bench/paper.json\n  \
     tricons bench --segmenter models/maskrcnn-light.card.json --runs 10\n  \
-    tricons bench --int8 models/tricons-pose.int8.json    # float and int8 side by side\n\n\
-    Per object: the graph on one instance (batch 1). Per frame: preprocessing plus one batched run\n\
-    over all instances of a recording frame (ground-truth masks). Medians over --runs after --warmup;\n\
-    tract runs on one thread.")]
+    tricons bench --int8 models/tricons-pose.int8.json    # float and int8 side by side\n  \
+    tricons bench --threads 1,2 --int8 models/tricons-pose.int8.json\n  \
+    tricons bench --pipeline --model models/tricons-pose.int8.json --segmenter models/maskrcnn-light.int8.json --threads 1,2\n\n\
+    Per object: the graph on one instance. Per frame: preprocessing plus the graph on every instance\n\
+    of a recording frame (ground-truth masks), the instances spread over the worker threads.\n\
+    Per object and the operator shares run on one thread; the per-frame graph at each --threads\n\
+    count. --pipeline: Mask R-CNN then the pose model on its detections, per frame, at each count.\n\
+    Medians over --runs after --warmup.")]
 pub struct Args {
     /// Pose model: its card (`*.card.json`) or graph (`*.onnx`, card beside it).
     #[arg(long, default_value = DEFAULT_MODEL)]
@@ -56,6 +60,13 @@ pub struct Args {
     /// on the same inputs, after the float model, and reported side by side.
     #[arg(long)]
     int8: Option<PathBuf>,
+    /// Worker thread counts to measure (comma-separated) [default: the cores available].
+    #[arg(long, value_name = "N,..", value_delimiter = ',')]
+    threads: Vec<usize>,
+    /// The whole per-frame work: --segmenter (default the shipped one) then --model on its
+    /// detections, at each --threads count.
+    #[arg(long)]
+    pipeline: bool,
 }
 
 /// Latency statistics of one measurement, milliseconds.
@@ -110,6 +121,17 @@ struct Report {
     /// The int8 profile's measurements on the same inputs (`--int8`).
     #[serde(skip_serializing_if = "Option::is_none")]
     int8: Option<Int8Report>,
+    /// The per-frame graph (every instance of a frame) at each `--threads` count.
+    per_frame_graph_by_threads: Vec<ThreadsRow>,
+}
+
+/// The per-frame graph time at one worker-thread count.
+#[derive(Serialize)]
+struct ThreadsRow {
+    threads: usize,
+    float: Stats,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    int8: Option<Stats>,
 }
 
 /// The int8 model in the same run.
@@ -130,13 +152,38 @@ pub fn run(args: Args) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
     }
+    if args.threads.contains(&0) {
+        bail!("--threads: counts must be at least 1");
+    }
+    let threads = if args.threads.is_empty() { vec![crate::common::available_threads()] } else { args.threads.clone() };
+    if args.pipeline {
+        let segmenter = args.segmenter.clone().unwrap_or_else(|| PathBuf::from(crate::common::DEFAULT_SEGMENTER));
+        return crate::bench_pipeline::run(crate::bench_pipeline::PipelineBench {
+            model: &args.model,
+            segmenter: &segmenter,
+            recording: &args.recording,
+            threads: &threads,
+            runs: args.runs,
+            warmup: args.warmup,
+            seed: args.seed,
+            json: args.json.as_deref(),
+        });
+    }
     if let Some(seg) = &args.segmenter {
         let int8 = args.int8.as_deref();
-        return crate::bench_segment::run(seg, int8, &args.recording, args.runs, args.warmup, args.json.as_deref());
+        return crate::bench_segment::run(
+            seg,
+            int8,
+            &args.recording,
+            &threads,
+            args.runs,
+            args.warmup,
+            args.json.as_deref(),
+        );
     }
     let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();
-    let estimator = PoseEstimator::load(&args.model).with_context(|| "loading the pose model (--model)")?;
+    let mut estimator = PoseEstimator::load(&args.model).with_context(|| "loading the pose model (--model)")?;
     let load_s = t_load.elapsed().as_secs_f64();
     let cfg = estimator.preprocess_config().clone();
     log::info!("model {} ({}) loaded in {load_s:.2} s", estimator.card_path().display(), estimator.card().config_name);
@@ -216,6 +263,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     bar.finish_and_clear();
 
+    let mut quantized = None;
     let int8 = match &args.int8 {
         None => None,
         Some(path) => {
@@ -224,9 +272,11 @@ pub fn run(args: Args) -> Result<()> {
             let load_s = t.elapsed().as_secs_f64();
             let (obj, graph) = time_graph(&q, &one, &frames, &args)?;
             let (obj, graph) = (Stats::of(&obj), Stats::of(&graph));
+            let int8_nodes = q.quantized().map_or(0, |r| r.quantized);
+            quantized = Some(q);
             Some(Int8Report {
                 profile: path.display().to_string(),
-                int8_nodes: q.quantized().map_or(0, |r| r.quantized),
+                int8_nodes,
                 load_s,
                 speedup_per_object: Stats::of(&object_times).median_ms / obj.median_ms,
                 speedup_per_frame_graph: Stats::of(&graph_times).median_ms / graph.median_ms,
@@ -236,6 +286,19 @@ pub fn run(args: Args) -> Result<()> {
         }
     };
 
+    let mut per_frame_graph_by_threads = Vec::new();
+    for &t in &threads {
+        estimator.set_threads(t)?;
+        let float = Stats::of(&frame_graph_times(&estimator, &frames, &args)?);
+        let int8 = match quantized.as_mut() {
+            None => None,
+            Some(q) => {
+                q.set_threads(t)?;
+                Some(Stats::of(&frame_graph_times(q, &frames, &args)?))
+            }
+        };
+        per_frame_graph_by_threads.push(ThreadsRow { threads: t, float, int8 });
+    }
     let card = estimator.card();
     let report = Report {
         runtime: "tract",
@@ -258,18 +321,25 @@ pub fn run(args: Args) -> Result<()> {
         per_frame_ops,
         per_frame_custom_share,
         int8,
+        per_frame_graph_by_threads,
     };
     print_report(&report);
     if args.profile_graph {
         print_node_profile(&estimator, &one[0], &frames, args.seed)?;
     }
     if let Some(path) = &args.json {
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        }
-        write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
-        log::info!("report written to {}", path.display());
+        write_report(path, &report)?;
     }
+    Ok(())
+}
+
+/// Write a benchmark report as pretty JSON (atomically, creating the directory).
+pub(crate) fn write_report(path: &std::path::Path, report: &impl Serialize) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    write_atomic(path, serde_json::to_string_pretty(report)?.as_bytes())?;
+    log::info!("report written to {}", path.display());
     Ok(())
 }
 
@@ -290,6 +360,16 @@ fn time_graph(
         estimator.run_inputs(one)?;
         object.push(t.elapsed());
     }
+    Ok((object, frame_graph_times(estimator, frames, args)?))
+}
+
+/// The graph on every instance of each frame (at the estimator's thread count), `--runs`
+/// times per frame after `--warmup`.
+fn frame_graph_times(
+    estimator: &PoseEstimator,
+    frames: &[(usize, tricons::frame::RgbdFrame, Vec<Vec<bool>>)],
+    args: &Args,
+) -> Result<Vec<Duration>> {
     let mut graph = Vec::new();
     for (i, frame, masks) in frames {
         let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
@@ -303,7 +383,7 @@ fn time_graph(
             graph.push(t.elapsed());
         }
     }
-    Ok((object, graph))
+    Ok(graph)
 }
 
 /// Time per tract operator over one run at batch 1 and one over the first frame's batch.
@@ -385,6 +465,14 @@ fn print_report(r: &Report) {
             100.0 * o.share_of_graph,
             f.ms_per_run,
             100.0 * f.share_of_graph
+        );
+    }
+    for row in &r.per_frame_graph_by_threads {
+        println!(
+            "per frame graph, {} thread(s): float {:.2} ms{}",
+            row.threads,
+            row.float.median_ms,
+            row.int8.as_ref().map(|q| format!(", int8 {:.2} ms", q.median_ms)).unwrap_or_default()
         );
     }
     if let Some(q) = &r.int8 {

@@ -6,12 +6,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use serde::Serialize;
-use tricons::atomic::write_atomic;
 use tricons::ops::nms::{BoxFormat, NmsParams, nms, nms_reference};
 use tricons::ops::profile;
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;
-use tricons::synth::rng::Rng;
+use tricons::rng::Rng;
 
 use crate::bench::{OpShare, Stats, machine, op_shares};
 
@@ -29,9 +28,18 @@ struct SegReport {
     height: u32,
     load_s: f64,
     plan_s: f64,
+    /// Detections at the card's score threshold.
     detections: usize,
+    /// The card's score threshold, which the graph applies before NMS and the mask head.
+    score_threshold: f32,
+    /// At the card's threshold (what `segment`, `replay` and `serve` run), one thread.
     per_frame: Stats,
     ops: Vec<OpShare>,
+    /// Every detection above the graph's own floor (the work before the floor was raised).
+    detections_all: usize,
+    per_frame_all: Stats,
+    /// The card's threshold at each `--threads` count (float, int8).
+    per_frame_by_threads: Vec<SegThreadsRow>,
     nms_candidates: usize,
     nms_kept: usize,
     nms_grid: Stats,
@@ -39,6 +47,15 @@ struct SegReport {
     /// The int8 profile on the same frame (`--int8`).
     #[serde(skip_serializing_if = "Option::is_none")]
     int8: Option<SegInt8>,
+}
+
+/// Frame latency at one worker-thread count.
+#[derive(Serialize)]
+struct SegThreadsRow {
+    threads: usize,
+    float: Stats,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    int8: Option<Stats>,
 }
 
 /// The int8 segmenter in the same run.
@@ -54,7 +71,7 @@ struct SegInt8 {
     speedup: f64,
 }
 
-/// Load (all detections kept), plan for `frame`, warm up, time `runs` frames:
+/// Load, plan for `frame` at the card's threshold, warm up, time `runs` frames:
 /// (segmenter, load s, plan s, detections, times).
 fn timed_segmenter(
     model: &Path,
@@ -64,17 +81,28 @@ fn timed_segmenter(
     profiled: bool,
 ) -> Result<(Segmenter, f64, f64, usize, Vec<Duration>)> {
     let t = Instant::now();
-    let mut seg = Segmenter::load(model).with_context(|| format!("loading the segmenter {}", model.display()))?;
+    let seg = Segmenter::load(model).with_context(|| format!("loading the segmenter {}", model.display()))?;
     let load_s = t.elapsed().as_secs_f64();
-    seg.set_score_threshold(0.0);
     let t = Instant::now();
     seg.prepare(frame.color.width as usize, frame.color.height as usize)?;
     let plan_s = t.elapsed().as_secs_f64();
+    profile::enable(profiled);
+    let (detections, times) = time_frames(&seg, frame, runs, warmup)?;
+    Ok((seg, load_s, plan_s, detections, times))
+}
+
+/// `segment` on `frame`, `runs` times after `warmup` (the profile counters reset after the
+/// warm-up): (detections, times).
+fn time_frames(
+    seg: &Segmenter,
+    frame: &tricons::frame::RgbdFrame,
+    runs: usize,
+    warmup: usize,
+) -> Result<(usize, Vec<Duration>)> {
     let mut detections = 0;
     for _ in 0..warmup {
         detections = seg.segment(&frame.color)?.len();
     }
-    profile::enable(profiled);
     profile::reset();
     let mut times = Vec::with_capacity(runs);
     for _ in 0..runs {
@@ -82,7 +110,7 @@ fn timed_segmenter(
         detections = seg.segment(&frame.color)?.len();
         times.push(t.elapsed());
     }
-    Ok((seg, load_s, plan_s, detections, times))
+    Ok((detections, times))
 }
 
 /// Benchmark `model` on the first frame of `recording`.
@@ -90,15 +118,20 @@ pub fn run(
     model: &Path,
     int8: Option<&Path>,
     recording: &Path,
+    threads: &[usize],
     runs: usize,
     warmup: usize,
     json: Option<&Path>,
 ) -> Result<()> {
     let rec = open_recording(recording).with_context(|| "opening the recording (--recording)")?;
     let frame = rec.read_frame(0)?;
-    let (seg, load_s, plan_s, detections, times) = timed_segmenter(model, &frame, runs, warmup, true)?;
+    let (mut seg, load_s, plan_s, detections, times) = timed_segmenter(model, &frame, runs, warmup, true)?;
     let (ops, _) = op_shares(runs, &times);
     profile::enable(false);
+    let score_threshold = seg.card().score_threshold;
+    seg.set_score_threshold(0.0);
+    let (detections_all, times_all) = time_frames(&seg, &frame, runs, warmup)?;
+    seg.set_score_threshold(score_threshold);
 
     let (boxes, scores) = many_boxes(NMS_CANDIDATES);
     let p = NmsParams { format: BoxFormat::Corners, max_output: usize::MAX, iou_threshold: 0.7, score_threshold: None };
@@ -115,14 +148,17 @@ pub fn run(
     let (grid, nms_kept) = time(&|| nms(&boxes, &scores, &p), runs.max(3));
     let (pairwise, kept_ref) = time(&|| nms_reference(&boxes, &scores, &p), 3);
     anyhow::ensure!(kept_ref == nms_kept, "grid NMS kept {nms_kept}, pairwise {kept_ref}");
+    let mut quantized = None;
     let int8 = match int8 {
         None => None,
         Some(path) => {
             let (q, load_s, plan_s, detections, q_times) = timed_segmenter(path, &frame, runs, warmup, false)?;
             let per_frame = Stats::of(&q_times);
+            let int8_nodes = q.quantized().map_or(0, |r| r.quantized);
+            quantized = Some(q);
             Some(SegInt8 {
                 profile: path.display().to_string(),
-                int8_nodes: q.quantized().map_or(0, |r| r.quantized),
+                int8_nodes,
                 load_s,
                 plan_s,
                 detections,
@@ -131,6 +167,19 @@ pub fn run(
             })
         }
     };
+    let mut per_frame_by_threads = Vec::new();
+    for &t in threads {
+        seg.set_threads(t)?;
+        let float = Stats::of(&time_frames(&seg, &frame, runs, warmup)?.1);
+        let int8 = match quantized.as_mut() {
+            None => None,
+            Some(q) => {
+                q.set_threads(t)?;
+                Some(Stats::of(&time_frames(q, &frame, runs, warmup)?.1))
+            }
+        };
+        per_frame_by_threads.push(SegThreadsRow { threads: t, float, int8 });
+    }
     let report = SegReport {
         runtime: "tract",
         model: seg.onnx_path().display().to_string(),
@@ -141,8 +190,12 @@ pub fn run(
         load_s,
         plan_s,
         detections,
+        score_threshold,
         per_frame: Stats::of(&times),
         ops,
+        detections_all,
+        per_frame_all: Stats::of(&times_all),
+        per_frame_by_threads,
         nms_candidates: NMS_CANDIDATES,
         nms_kept,
         nms_grid: Stats::of(&grid),
@@ -150,12 +203,13 @@ pub fn run(
         int8,
     };
     println!(
-        "segmenter {} on {}x{} ({} detections at score >= 0): median {:.1} ms/frame (p10 {:.1}, p90 {:.1}), \
+        "segmenter {} on {}x{} ({} detections at score >= {}): median {:.1} ms/frame (p10 {:.1}, p90 {:.1}), \
          load {:.2} s + plan {:.2} s",
         report.model,
         report.width,
         report.height,
         detections,
+        score_threshold,
         report.per_frame.median_ms,
         report.per_frame.p10_ms,
         report.per_frame.p90_ms,
@@ -169,6 +223,18 @@ pub fn run(
             o.calls_per_run,
             o.ms_per_run,
             100.0 * o.share_of_graph
+        );
+    }
+    println!(
+        "every detection above the graph's floor ({detections_all}): median {:.1} ms/frame",
+        report.per_frame_all.median_ms
+    );
+    for row in &report.per_frame_by_threads {
+        println!(
+            "{} thread(s): float {:.1} ms/frame{}",
+            row.threads,
+            row.float.median_ms,
+            row.int8.as_ref().map(|q| format!(", int8 {:.1} ms/frame", q.median_ms)).unwrap_or_default()
         );
     }
     println!(
@@ -188,7 +254,7 @@ pub fn run(
         );
     }
     if let Some(path) = json {
-        write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())?;
+        crate::bench::write_report(path, &report)?;
     }
     Ok(())
 }

@@ -1,7 +1,9 @@
 //! The `tricons` command-line tool.
 
 mod bench;
+mod bench_pipeline;
 mod bench_segment;
+mod common;
 mod devices;
 mod eval;
 mod inspect;

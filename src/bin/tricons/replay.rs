@@ -15,22 +15,9 @@ use tricons::pose::{PoseEstimator, Skipped};
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;
 
+use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING, DEFAULT_SEGMENTER, MaskSource};
 use crate::progress;
 
-/// The shipped demo recording (four SynthNOCS-test frames).
-pub const DEFAULT_RECORDING: &str = "tests/data/synthnocs-demo";
-/// The shipped pose model's card.
-pub const DEFAULT_MODEL: &str = "models/tricons-pose.card.json";
-
-/// Where the instance masks come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum MaskSource {
-    /// The Mask R-CNN (--segmenter) on the colour image: the full pipeline.
-    Model,
-    /// The recording's ground-truth instance masks (isolates the pose model).
-    Gt,
-}
 
 /// Arguments of `tricons replay`.
 #[derive(clap::Args)]
@@ -52,7 +39,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "model")]
     masks: MaskSource,
     /// Mask R-CNN for `--masks model`: its card or graph (any torchvision export).
-    #[arg(long, default_value = crate::segment::DEFAULT_SEGMENTER)]
+    #[arg(long, default_value = DEFAULT_SEGMENTER)]
     segmenter: PathBuf,
     /// Predictions to write (JSON Lines) [default: data/replay/<recording name>.jsonl].
     #[arg(long)]
@@ -69,14 +56,23 @@ pub struct Args {
     /// Do not evaluate against the ground truth at the end.
     #[arg(long)]
     no_eval: bool,
+    /// Worker threads a frame's objects run on [default: the cores available].
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Worker threads of the Mask R-CNN's matrix products.
+    #[arg(long, value_name = "N", default_value_t = crate::common::DEFAULT_SEGMENTER_THREADS)]
+    segmenter_threads: usize,
 }
 
 pub fn run(args: Args) -> Result<()> {
     let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();
-    let estimator = PoseEstimator::load(&args.model).with_context(|| "loading the pose model (--model)")?;
+    let threads = crate::common::threads(args.threads);
+    let estimator = PoseEstimator::load(&args.model)
+        .and_then(|e| e.with_threads(threads))
+        .with_context(|| "loading the pose model (--model)")?;
     log::info!(
-        "model {} ({}) loaded in {:.2} s; {}",
+        "model {} ({}) loaded in {:.2} s, {threads} thread(s); {}",
         estimator.card_path().display(),
         estimator.card().config_name,
         t_load.elapsed().as_secs_f64(),
@@ -84,7 +80,9 @@ pub fn run(args: Args) -> Result<()> {
     );
     let segmenter = match args.masks {
         MaskSource::Model => {
-            let seg = Segmenter::load(&args.segmenter).with_context(|| "loading the segmenter (--segmenter)")?;
+            let seg = Segmenter::load(&args.segmenter)
+                .and_then(|s| s.with_threads(args.segmenter_threads))
+                .with_context(|| "loading the segmenter (--segmenter)")?;
             log::info!("masks from {}", seg.onnx_path().display());
             Some(seg)
         }
@@ -119,7 +117,7 @@ pub fn run(args: Args) -> Result<()> {
                 detections
             }
         };
-        let seed = tricons::synth::rng::mix_seed(&[args.seed, i as u64]);
+        let seed = tricons::rng::mix_seed(&[args.seed, i as u64]);
         let (instances, skips) = estimate_detections(&estimator, &frame, &detections, seed)?;
         estimated += instances.len();
         skipped += skips.len();

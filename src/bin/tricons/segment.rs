@@ -10,10 +10,8 @@ use tricons::output::segments::{SegRecord, draw_segments, label_image};
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;
 
+use crate::common::{DEFAULT_RECORDING, DEFAULT_SEGMENTER};
 use crate::progress;
-
-/// The shipped Mask R-CNN's card.
-pub const DEFAULT_SEGMENTER: &str = "models/maskrcnn-light.card.json";
 
 /// Reads one frame's colour image on demand.
 type FrameLoader = Box<dyn Fn() -> Result<tricons::ColorImage>>;
@@ -30,7 +28,7 @@ type FrameLoader = Box<dyn Fn() -> Result<tricons::ColorImage>>;
     card beside it, labels stay numeric and the score threshold is 0.5.")]
 pub struct Args {
     /// Recording directory (ignored when --image is given).
-    #[arg(long, default_value = crate::replay::DEFAULT_RECORDING)]
+    #[arg(long, default_value = DEFAULT_RECORDING)]
     recording: PathBuf,
     /// Colour PNG(s) to segment instead of a recording.
     #[arg(long, num_args = 1..)]

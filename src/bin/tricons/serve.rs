@@ -15,7 +15,7 @@ use tricons::pipeline::{
 use tricons::pose::PoseEstimator;
 use tricons::segment::Segmenter;
 
-use crate::replay::{DEFAULT_MODEL, MaskSource};
+use crate::common::{DEFAULT_MODEL, DEFAULT_SEGMENTER, MaskSource};
 use crate::source_args::{SourceArgs, stop_on_signals};
 
 /// Default seconds between two stats lines in the log.
@@ -75,6 +75,14 @@ pub struct Args {
     /// Write the final stats (the /health view) to this JSON file at exit.
     #[arg(long, value_name = "FILE")]
     stats_out: Option<PathBuf>,
+    /// Worker threads in all: with Mask R-CNN masks --segmenter-threads of them segment
+    /// and the rest (at least 1) run a frame's objects, the two stages side by side on
+    /// different frames; with ground-truth masks all run objects [default: the cores available].
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Of --threads, those of the Mask R-CNN's matrix products [default: 1].
+    #[arg(long, value_name = "N")]
+    segmenter_threads: Option<usize>,
 }
 
 impl Args {
@@ -100,6 +108,8 @@ impl Args {
             frames: self.frames.or(file.frames),
             stats_interval: self.stats_interval.or(file.stats_interval),
             stats_out: self.stats_out.or(file.stats_out),
+            threads: self.threads.or(file.threads),
+            segmenter_threads: self.segmenter_threads.or(file.segmenter_threads),
         })
     }
 }
@@ -109,14 +119,24 @@ pub fn run(args: Args) -> Result<()> {
     let masks = args.masks.unwrap_or(MaskSource::Model);
     let source = args.source.open(masks == MaskSource::Gt)?;
     let model = args.model.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
-    let estimator = PoseEstimator::load(&model).with_context(|| "loading the pose model (--model)")?;
+    let segmenter_threads = args.segmenter_threads.unwrap_or(crate::common::DEFAULT_SEGMENTER_THREADS);
+    let (segment_threads, pose_threads) =
+        split_threads(crate::common::threads(args.threads), segmenter_threads, masks);
+    let estimator = PoseEstimator::load(&model)
+        .and_then(|e| e.with_threads(pose_threads))
+        .with_context(|| "loading the pose model (--model)")?;
     let segment: Box<dyn Segment> = match masks {
         MaskSource::Gt => Box::new(GroundTruthMasks),
         MaskSource::Model => {
-            let path = args.segmenter.clone().unwrap_or_else(|| PathBuf::from(crate::segment::DEFAULT_SEGMENTER));
-            Box::new(Segmenter::load(&path).with_context(|| "loading the segmenter (--segmenter)")?)
+            let path = args.segmenter.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_SEGMENTER));
+            Box::new(
+                Segmenter::load(&path)
+                    .and_then(|s| s.with_threads(segment_threads))
+                    .with_context(|| "loading the segmenter (--segmenter)")?,
+            )
         }
     };
+    log::info!("threads: segment {segment_threads}, pose {pose_threads}");
     let stats = Arc::new(PipelineStats::new());
     let stop = StopHandle::default();
     stop_on_signals(stop.clone())?;
@@ -183,6 +203,18 @@ pub fn run(args: Args) -> Result<()> {
         tricons::atomic::write_atomic(path, json.as_bytes())?;
     }
     Ok(())
+}
+
+/// (segment, pose) worker threads out of `total`, `segmenter` of them segmenting: the two
+/// stages run at the same time on different frames, so each gets its own share.
+fn split_threads(total: usize, segmenter: usize, masks: MaskSource) -> (usize, usize) {
+    match masks {
+        MaskSource::Gt => (0, total.max(1)),
+        MaskSource::Model => {
+            let segment = segmenter.clamp(1, total.max(1));
+            (segment, total.saturating_sub(segment).max(1))
+        }
+    }
 }
 
 /// One log line of counters.

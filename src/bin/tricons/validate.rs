@@ -54,6 +54,10 @@ pub struct Args {
     /// Pose: seed of the point sampling (the same for both models).
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Worker threads of each model: a pose model's objects in parallel [default: the cores
+    /// available]; a Mask R-CNN's matrix products [default: 1, see `replay --segmenter-threads`].
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
 }
 
 /// One metric of both models.
@@ -235,8 +239,13 @@ fn metric_row(name: &str, float: Option<f64>, int8: Option<f64>) -> MetricRow {
 }
 
 fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &QuantProfile) -> Result<Report> {
-    let float = PoseEstimator::load(&args.float).with_context(|| "loading the float model (--float)")?;
-    let int8 = PoseEstimator::load(&args.int8).with_context(|| "loading the int8 model (--int8)")?;
+    let threads = crate::common::threads(args.threads);
+    let float = PoseEstimator::load(&args.float)
+        .and_then(|m| m.with_threads(threads))
+        .with_context(|| "loading the float model (--float)")?;
+    let int8 = PoseEstimator::load(&args.int8)
+        .and_then(|m| m.with_threads(threads))
+        .with_context(|| "loading the int8 model (--int8)")?;
     check_same_graph(profile, &float.card().onnx.sha256, &args.float)?;
     let bar = progress::bar(frames, "validate");
     let (mut gts, mut preds_f, mut preds_q) = (Vec::new(), Vec::new(), Vec::new());
@@ -247,7 +256,7 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
         let frame = rec.read_frame(i)?;
         let (gt, masks) = ground_truth(rec, i)?;
         let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
-        let prepared = float.prepare(&frame, &refs, tricons::synth::rng::mix_seed(&[args.seed, i as u64]))?;
+        let prepared = float.prepare(&frame, &refs, tricons::rng::mix_seed(&[args.seed, i as u64]))?;
         let mut outcomes: Vec<Vec<InstanceOutcome>> = Vec::new();
         for (model, t) in [&float, &int8].into_iter().zip(&mut times) {
             let start = Instant::now();
@@ -330,8 +339,13 @@ fn objects(dets: &[SegInstance]) -> Vec<Object2d> {
 }
 
 fn validate_segmenter(args: &Args, rec: &dyn Recording, frames: usize, profile: &QuantProfile) -> Result<Report> {
-    let float = Segmenter::load(&args.float).with_context(|| "loading the float model (--float)")?;
-    let int8 = Segmenter::load(&args.int8).with_context(|| "loading the int8 model (--int8)")?;
+    let threads = args.threads.unwrap_or(crate::common::DEFAULT_SEGMENTER_THREADS).max(1);
+    let float = Segmenter::load(&args.float)
+        .and_then(|m| m.with_threads(threads))
+        .with_context(|| "loading the float model (--float)")?;
+    let int8 = Segmenter::load(&args.int8)
+        .and_then(|m| m.with_threads(threads))
+        .with_context(|| "loading the int8 model (--int8)")?;
     check_same_graph(profile, float.onnx_sha256(), &args.float)?;
     // Plans are built per image size on first use: build them before timing.
     let first = rec.read_frame(0)?;

@@ -1,5 +1,7 @@
 //! A small deterministic random number generator (SplitMix64 seeding
-//! xoshiro256**), so that SynthNOCS never depends on a crate's RNG version.
+//! xoshiro256**), so that neither SynthNOCS nor the runtime's point sampler
+//! (`pose::preprocess`, mirrored by tools' `tricons_rng.py`) depends on a crate's
+//! RNG version.
 
 /// One SplitMix64 step: advances `state` and returns the next output.
 pub fn splitmix64(state: &mut u64) -> u64 {

@@ -1,0 +1,138 @@
+//! Load-time rewrites of the pose graph (ONNX protobuf, before tract parses it): standard
+//! nodes tract runs slowly become `ai.tricons` nodes with the same results.
+//!
+//! * `ReduceMax` over one (non-negative) axis, f32 (PointNet++'s neighbour max-pool) ->
+//!   `ReduceMaxAxis` ([`crate::ops::reduce_max`]): the same fold, bit for bit.
+//! * `Resize` with mode `linear`, `half_pixel` coordinates, constant scales (1, 1, 2, 2),
+//!   no sizes, no antialiasing or `exclude_outside` -> `BilinearUpsample2x`
+//!   ([`crate::ops::upsample`]): the same taps and evaluation order, bit for bit.
+//!
+//! Anything else is left alone; the report counts what was replaced.
+
+use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, attribute_proto, tensor_proto};
+
+/// Domain of the replacement nodes.
+const DOMAIN: &str = "ai.tricons";
+
+/// What [`rewrite`] replaced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RewriteReport {
+    /// `ReduceMax` nodes now `ReduceMaxAxis`.
+    pub reduce_max: usize,
+    /// `Resize` nodes now `BilinearUpsample2x`.
+    pub upsample: usize,
+}
+
+fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
+    node.attribute.iter().find(|a| a.name == name)
+}
+
+fn attr_i(node: &NodeProto, name: &str, default: i64) -> i64 {
+    attr(node, name).map_or(default, |a| a.i)
+}
+
+fn attr_s<'a>(node: &'a NodeProto, name: &str, default: &'a str) -> &'a str {
+    attr(node, name).map_or(default, |a| std::str::from_utf8(&a.s).unwrap_or(""))
+}
+
+fn int_attr(name: &str, value: i64) -> AttributeProto {
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_proto::AttributeType::Int as i32,
+        i: value,
+        ..Default::default()
+    }
+}
+
+/// An f32 constant (initializer or `Constant` node) by name.
+fn constant_f32(graph: &GraphProto, name: &str) -> Option<Vec<f32>> {
+    let t = graph.initializer.iter().find(|t| t.name == name).or_else(|| {
+        graph
+            .node
+            .iter()
+            .find(|n| n.op_type == "Constant" && n.output.first().is_some_and(|o| o == name))
+            .and_then(|n| attr(n, "value"))
+            .and_then(|a| a.t.as_ref())
+    })?;
+    if t.data_type != tensor_proto::DataType::Float as i32 {
+        return None;
+    }
+    if !t.float_data.is_empty() {
+        return Some(t.float_data.clone());
+    }
+    let raw = &t.raw_data;
+    raw.len().is_multiple_of(4).then(|| {
+        raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+    })
+}
+
+/// `ReduceMaxAxis` for a `ReduceMax` with a single non-negative `axes` attribute (opset
+/// <= 17 form) and no axes input.
+fn reduce_max(node: &NodeProto) -> Option<NodeProto> {
+    if node.op_type != "ReduceMax" || node.input.len() != 1 || node.output.len() != 1 {
+        return None;
+    }
+    let axes = &attr(node, "axes")?.ints;
+    let [axis] = axes.as_slice() else { return None };
+    if *axis < 0 || attr_i(node, "noop_with_empty_axes", 0) != 0 {
+        return None;
+    }
+    Some(NodeProto {
+        name: node.name.clone(),
+        op_type: "ReduceMaxAxis".into(),
+        domain: DOMAIN.into(),
+        input: node.input.clone(),
+        output: node.output.clone(),
+        attribute: vec![int_attr("axis", *axis), int_attr("keepdims", attr_i(node, "keepdims", 1))],
+        ..Default::default()
+    })
+}
+
+/// `BilinearUpsample2x` for a linear half-pixel `Resize` by constant scales (1, 1, 2, 2).
+fn upsample(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
+    if node.op_type != "Resize" || node.output.len() != 1 {
+        return None;
+    }
+    let plain = attr_s(node, "mode", "nearest") == "linear"
+        && attr_s(node, "coordinate_transformation_mode", "half_pixel") == "half_pixel"
+        && attr_i(node, "antialias", 0) == 0
+        && attr_i(node, "exclude_outside", 0) == 0
+        && attr_s(node, "keep_aspect_ratio_policy", "stretch") == "stretch"
+        && attr(node, "axes").is_none();
+    // inputs: X, roi (unused outside tf_crop_and_resize), scales, [sizes]
+    let scales = node.input.get(2).filter(|s| !s.is_empty())?;
+    let no_sizes = node.input.get(3).is_none_or(|s| s.is_empty());
+    if !plain || !no_sizes || constant_f32(graph, scales)? != [1.0, 1.0, 2.0, 2.0] {
+        return None;
+    }
+    Some(NodeProto {
+        name: node.name.clone(),
+        op_type: "BilinearUpsample2x".into(),
+        domain: DOMAIN.into(),
+        input: vec![node.input[0].clone()],
+        output: node.output.clone(),
+        ..Default::default()
+    })
+}
+
+/// Apply both rewrites to `model` in place.
+pub fn rewrite(model: &mut ModelProto) -> RewriteReport {
+    let mut report = RewriteReport::default();
+    let Some(graph) = model.graph.as_mut() else { return report };
+    let replaced: Vec<Option<NodeProto>> = graph
+        .node
+        .iter()
+        .map(|n| {
+            reduce_max(n).inspect(|_| report.reduce_max += 1).or_else(|| upsample(graph, n).inspect(|_| report.upsample += 1))
+        })
+        .collect();
+    for (node, new) in graph.node.iter_mut().zip(replaced) {
+        if let Some(new) = new {
+            *node = new;
+        }
+    }
+    if report != RewriteReport::default() && !model.opset_import.iter().any(|o| o.domain == DOMAIN) {
+        model.opset_import.push(tract_onnx::pb::OperatorSetIdProto { domain: DOMAIN.into(), version: 1 });
+    }
+    report
+}
