@@ -18,4 +18,3 @@ pub fn pool(threads: usize, what: &str) -> Result<Option<Arc<rayon::ThreadPool>>
         .map(|p| Some(Arc::new(p)))
         .map_err(|e| Error::InvalidArgument(format!("cannot start {threads} worker threads: {e}")))
 }
-

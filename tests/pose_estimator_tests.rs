@@ -267,7 +267,9 @@ fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
     let (a, b) = (run(&plain), run(&fast));
     assert_eq!(a.len(), b.len());
     for (k, (x, y)) in a.iter().zip(&b).enumerate() {
-        let bits = |t: &TValue| t.try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let bits = |t: &TValue| {
+            t.try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        };
         assert_eq!(bits(x), bits(y), "output {k}");
     }
 }

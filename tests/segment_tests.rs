@@ -6,9 +6,9 @@ use serde_json::Value;
 use tricons::ops::nms::{BoxFormat, NmsParams, nms, nms_reference};
 use tricons::ops::roi_align::{PoolMode, RoiAlignParams, roi_align};
 use tricons::output::segments::{mask_to_rle, rle_to_mask};
+use tricons::rng::Rng;
 use tricons::segment::Segmenter;
 use tricons::segment::paste::paste_mask;
-use tricons::rng::Rng;
 
 fn fixture(name: &str) -> Value {
     let path = format!("{}/tests/fixtures/segment/{name}", env!("CARGO_MANIFEST_DIR"));
@@ -324,8 +324,7 @@ fn raised_score_floor_keeps_exactly_the_detections_above_the_threshold() {
     assert!(kept_total > 0);
     // a graph without a softmax score floor is left alone
     use tract_onnx::prelude::Framework;
-    let mut pose = tricons::ops::onnx_with_custom_ops()
-        .proto_model_for_path(root.join("models/tricons-pose.onnx"))
-        .unwrap();
+    let mut pose =
+        tricons::ops::onnx_with_custom_ops().proto_model_for_path(root.join("models/tricons-pose.onnx")).unwrap();
     assert_eq!(tricons::segment::rewrite::raise_score_floor(&mut pose, 0.5), Ok(None));
 }

@@ -5,8 +5,8 @@ use std::path::Path;
 use tricons::Category;
 use tricons::frame::Intrinsics;
 use tricons::recording::open_recording;
-use tricons::synth::mesh::TAG_HANDLE;
 use tricons::rng::Rng;
+use tricons::synth::mesh::TAG_HANDLE;
 use tricons::synth::shapes::generate_object;
 use tricons::synth::{MIN_VISIBLE_PX, SynthConfig, SynthFrame, generate, render_frame};
 

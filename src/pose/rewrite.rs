@@ -61,9 +61,9 @@ fn constant_f32(graph: &GraphProto, name: &str) -> Option<Vec<f32>> {
         return Some(t.float_data.clone());
     }
     let raw = &t.raw_data;
-    raw.len().is_multiple_of(4).then(|| {
-        raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
-    })
+    raw.len()
+        .is_multiple_of(4)
+        .then(|| raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
 }
 
 /// `ReduceMaxAxis` for a `ReduceMax` with a single non-negative `axes` attribute (opset
@@ -123,7 +123,9 @@ pub fn rewrite(model: &mut ModelProto) -> RewriteReport {
         .node
         .iter()
         .map(|n| {
-            reduce_max(n).inspect(|_| report.reduce_max += 1).or_else(|| upsample(graph, n).inspect(|_| report.upsample += 1))
+            reduce_max(n)
+                .inspect(|_| report.reduce_max += 1)
+                .or_else(|| upsample(graph, n).inspect(|_| report.upsample += 1))
         })
         .collect();
     for (node, new) in graph.node.iter_mut().zip(replaced) {

@@ -80,8 +80,12 @@ pub struct Segmenter {
     /// tract's matrix-product executor for this model's runs (`--threads`).
     executor: tract_linalg::multithread::Executor,
     /// Plans per (width, height, raised score floor bits).
-    plans: Mutex<HashMap<(usize, usize, Option<u32>), Arc<TypedRunnableModel>>>,
+    plans: Mutex<HashMap<PlanKey, Arc<TypedRunnableModel>>>,
 }
+
+/// A plan's image width and height and the bits of its raised score floor (`None`: the
+/// graph's own).
+type PlanKey = (usize, usize, Option<u32>);
 
 impl std::fmt::Debug for Segmenter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

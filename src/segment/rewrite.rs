@@ -313,10 +313,9 @@ fn find_score_floor(graph: &GraphProto) -> Result<Option<(usize, f32)>, String> 
     match found.as_slice() {
         [] => Ok(None),
         [one] => Ok(Some(*one)),
-        many => Err(format!(
-            "{} score floors (Greater of softmax scores and a constant) found; expected one",
-            many.len()
-        )),
+        many => {
+            Err(format!("{} score floors (Greater of softmax scores and a constant) found; expected one", many.len()))
+        }
     }
 }
 

@@ -23,9 +23,9 @@ use crate::geometry::Pose;
 use crate::recording::annotations::{FrameAnnotations, GtInstance};
 use crate::recording::manifest::Manifest;
 use crate::recording::writer::{RecordingWriter, write_frame_files};
+use crate::rng::Rng;
 use raster::NO_ITEM;
 use rayon::prelude::*;
-use crate::rng::Rng;
 use std::path::Path;
 use std::str::FromStr;
 

@@ -3,11 +3,11 @@
 //! table looking at the object cluster.
 
 use super::mesh::TriMesh;
-use crate::rng::Rng;
 use super::shading::{Light, Lighting, Material, Pattern, hsv, random_color};
 use super::shapes::{ObjectModel, generate_object};
 use crate::category::Category;
 use crate::geometry::{Mat3, Pose, Vec3, rotation_axis_angle, rotation_y};
+use crate::rng::Rng;
 
 /// Camera elevation above the table plane, degrees.
 pub const CAMERA_ELEVATION_DEG: (f64, f64) = (15.0, 75.0);

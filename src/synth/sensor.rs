@@ -2,8 +2,8 @@
 //! dropouts, plus colour noise. See docs/synthnocs.md for the model.
 
 use super::raster::GBuffer;
-use crate::rng::Rng;
 use crate::frame::{ColorImage, DepthImage};
+use crate::rng::Rng;
 
 /// Closest measurable depth, metres.
 pub const MIN_DEPTH_M: f32 = 0.2;

@@ -3,10 +3,10 @@
 //! 1) and samples a metric scale from a realistic size range.
 
 use super::mesh::{TAG_HANDLE, TAG_NONE, TriMesh, rounded_rect};
-use crate::rng::Rng;
 use super::shading::{Material, Pattern, hsv, random_color};
 use crate::category::Category;
 use crate::geometry::{Vec3, rotation_axis_angle};
+use crate::rng::Rng;
 use std::f64::consts::{FRAC_PI_2, PI};
 
 /// Segments around surfaces of revolution.

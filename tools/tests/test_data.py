@@ -59,7 +59,12 @@ def encode_png(arr: np.ndarray, filters) -> bytes:
 @pytest.mark.parametrize("shape,dtype", [((7, 9), np.uint8), ((6, 5, 3), np.uint8), ((5, 8), np.uint16),
                                          ((9, 4, 3), np.uint16), ((4, 6, 4), np.uint8), ((3, 5, 2), np.uint16)])
 @pytest.mark.parametrize("filters", [[0], [1], [2], [3], [4], [4, 3, 0, 2, 1, 4, 4, 3]])
-def test_png_decoder_exact_all_filters(shape, dtype, filters):
+@pytest.mark.parametrize("pillow", [True, False], ids=["pillow-where-exact", "numpy-only"])
+def test_png_decoder_exact_all_filters(shape, dtype, filters, pillow, monkeypatch):
+    import tricons_pose.recording as recording
+
+    if not pillow:  # the numpy unfiltering for every format, as without Pillow
+        monkeypatch.setattr(recording, "_decode_with_pillow", lambda *a: None)
     rng = np.random.default_rng(0)
     arr = rng.integers(0, np.iinfo(dtype).max + 1, size=shape, dtype=np.int64).astype(dtype)
     img = decode_png(encode_png(arr, filters))

@@ -123,3 +123,28 @@ def test_unnamed_outputs_fail_clearly_and_a_card_maps_them(tmp_path):
     assert r.returncode == 0, r.stderr
     record = json.loads((tmp_path / "seg" / "segments.jsonl").read_text().splitlines()[0])
     assert record["instances"] and all(i["class"] in mr.CLASSES for i in record["instances"])
+
+
+def test_raised_score_floor_keeps_the_same_detections_in_onnxruntime():
+    """The score-floor rewrite tricons applies at load, done on the graph for onnxruntime
+    (bench_pipeline.raise_score_floor): onnxruntime returns exactly the detections of the
+    unchanged graph that score >= 0.5, with the same boxes and scores."""
+    import onnxruntime as ort
+    from PIL import Image
+
+    from tricons_pose.bench_pipeline import raise_score_floor
+
+    model = str(REPO / "models/maskrcnn-light.onnx")
+    img = np.asarray(Image.open(REPO / "tests/data/synthnocs-demo/000000_color.png").convert("RGB"))
+    x = (img.astype(np.float32) / 255.0).transpose(2, 0, 1).copy()
+    so = ort.SessionOptions()
+    so.log_severity_level = 3
+    plain = ort.InferenceSession(model, so, providers=["CPUExecutionProvider"]).run(None, {"image": x})
+    raised = ort.InferenceSession(raise_score_floor(model, 0.5), so, providers=["CPUExecutionProvider"]).run(
+        None, {"image": x})
+    keep = plain[2] >= 0.5
+    assert 0 < keep.sum() < len(keep)
+    np.testing.assert_array_equal(raised[1], plain[1][keep])
+    np.testing.assert_allclose(raised[2], plain[2][keep], atol=1e-6)
+    np.testing.assert_allclose(raised[0], plain[0][keep], atol=1e-3)
+    assert np.abs(raised[3] - plain[3][keep]).max() < 1e-4

@@ -143,3 +143,40 @@ def test_real_model_one_step(recording, tmp_path):
     summary = T.train(args, cfg=CFG)
     assert summary["step"] == 1 and torch.isfinite(torch.tensor(summary["last"]["total"]))
     assert {"pose", "nocs", "cd", "cvc"} <= set(summary["last"])
+
+
+def test_init_from_starts_at_the_given_weights_with_a_fresh_schedule(recording, tmp_path):
+    """--init-from loads the source checkpoint's weights exactly and restarts the schedule."""
+    src = tmp_path / "src"
+    _run(_args(recording, src, "--max-steps", "3"))
+    ck = torch.load(src / "checkpoint.pt", weights_only=False)
+    out = tmp_path / "tuned"
+    seen = {}
+
+    def factory(cfg):
+        m = TinyModel(cfg)
+        orig = m.load_state_dict
+
+        def load(state, *a, **k):
+            seen["loaded"] = {n: v.clone() for n, v in state.items()}
+            return orig(state, *a, **k)
+
+        m.load_state_dict = load
+        return m
+
+    T.train(_args(recording, out, "--max-steps", "1", "--init-from", str(src / "checkpoint.pt"),
+                  "--keep-cycle-ends"), model_factory=factory, loss_fn=tiny_loss, cfg=CFG)
+    assert seen["loaded"].keys() == ck["model"].keys()
+    assert all(torch.equal(seen["loaded"][n], ck["model"][n]) for n in ck["model"])
+    log = _log(out)
+    assert [r["step"] for r in log] == [1] and log[0]["lr"] == pytest.approx(1e-3)  # schedule restarted
+    with pytest.raises(SystemExit, match="different model configuration"):
+        T.train(_args(recording, tmp_path / "other", "--max-steps", "1", "--init-from", str(src / "checkpoint.pt")),
+                model_factory=TinyModel, loss_fn=tiny_loss, cfg=CFG.replace(name="other"))
+
+
+def test_keep_cycle_ends_saves_the_low_rate_weights(recording, tmp_path):
+    out = tmp_path / "run"
+    _run(_args(recording, out, "--max-steps", "4", "--keep-cycle-ends"))  # cycle = 2 x 2 steps
+    kept = torch.load(out / "model-step4.pt", weights_only=False)
+    assert kept["step"] == 4 and kept["config"]["name"] == "test"

@@ -301,14 +301,14 @@ def train(
                     parts = " ".join(f"{k} {float(v.detach()):.4f}" for k, v in losses.items() if k != "total")
                     print(f"epoch {epoch} step {step} loss {float(total.detach()):.4f} ({parts}) lr {lr:.2e} "
                           f"{rec['samples_per_s']:.1f} samples/s", flush=True)
+                if args.keep_cycle_ends and step % (2 * cycle) == 0:
+                    save_atomic({"config": cfg.to_dict(), "model": model.state_dict(), "epoch": epoch, "step": step},
+                                out / f"model-step{step}.pt")
                 if args.max_steps and step >= args.max_steps:
                     stop = True
                     break
                 if args.ckpt_every > 0 and step % args.ckpt_every == 0:
                     checkpoint()
-                if args.keep_cycle_ends and step % (2 * cycle) == 0:
-                    save_atomic({"config": cfg.to_dict(), "model": model.state_dict(), "epoch": epoch, "step": step},
-                                out / f"model-step{step}.pt")
                 t_data = time.time()
             if not stop:
                 epoch, step_in_epoch = epoch + 1, 0

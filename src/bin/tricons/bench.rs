@@ -12,8 +12,8 @@ use tricons::pose::PoseEstimator;
 use tricons::recording::open_recording;
 use tricons::rng::mix_seed;
 
-use crate::progress;
 use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING};
+use crate::progress;
 
 /// Arguments of `tricons bench`.
 #[derive(clap::Args)]

@@ -9,8 +9,8 @@ use serde::Serialize;
 use tricons::pipeline::stages::{detections_from_segmenter, estimate_detections};
 use tricons::pose::PoseEstimator;
 use tricons::recording::open_recording;
-use tricons::segment::Segmenter;
 use tricons::rng::mix_seed;
+use tricons::segment::Segmenter;
 
 use crate::bench::{Stats, machine};
 use crate::progress;

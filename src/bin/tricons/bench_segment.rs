@@ -9,8 +9,8 @@ use serde::Serialize;
 use tricons::ops::nms::{BoxFormat, NmsParams, nms, nms_reference};
 use tricons::ops::profile;
 use tricons::recording::open_recording;
-use tricons::segment::Segmenter;
 use tricons::rng::Rng;
+use tricons::segment::Segmenter;
 
 use crate::bench::{OpShare, Stats, machine, op_shares};
 

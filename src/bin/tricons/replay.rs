@@ -18,7 +18,6 @@ use tricons::segment::Segmenter;
 use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING, DEFAULT_SEGMENTER, MaskSource};
 use crate::progress;
 
-
 /// Arguments of `tricons replay`.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \

@@ -120,8 +120,7 @@ pub fn run(args: Args) -> Result<()> {
     let source = args.source.open(masks == MaskSource::Gt)?;
     let model = args.model.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
     let segmenter_threads = args.segmenter_threads.unwrap_or(crate::common::DEFAULT_SEGMENTER_THREADS);
-    let (segment_threads, pose_threads) =
-        split_threads(crate::common::threads(args.threads), segmenter_threads, masks);
+    let (segment_threads, pose_threads) = split_threads(crate::common::threads(args.threads), segmenter_threads, masks);
     let estimator = PoseEstimator::load(&model)
         .and_then(|e| e.with_threads(pose_threads))
         .with_context(|| "loading the pose model (--model)")?;

@@ -13,7 +13,7 @@ use crate::ops::{OpResult, check_len};
 #[inline]
 fn taps(x: usize, n: usize) -> ((usize, f32), (usize, f32)) {
     let i = x / 2;
-    if x % 2 == 0 { ((i.saturating_sub(1), 0.25), (i, 0.75)) } else { ((i, 0.75), ((i + 1).min(n - 1), 0.25)) }
+    if x.is_multiple_of(2) { ((i.saturating_sub(1), 0.25), (i, 0.75)) } else { ((i, 0.75), ((i + 1).min(n - 1), 0.25)) }
 }
 
 #[inline]
