@@ -19,18 +19,22 @@ fn shipped() -> PoseEstimator {
     PoseEstimator::load(&models().join("tricons-pose.card.json")).expect("the shipped model loads")
 }
 
-#[test]
-fn fixture_inputs_through_the_estimator_match_pytorch() {
-    let est = shipped();
-    let all = cases("pose_net");
-    let inputs: Vec<PoseInput> = all
-        .iter()
+/// The golden fixtures' network inputs.
+fn fixture_inputs(all: &[common::npy::Case]) -> Vec<PoseInput> {
+    all.iter()
         .map(|c| PoseInput {
             rgb: c.get("rgb").f32().to_vec(),
             pts: c.get("pts").f32().to_vec(),
             choose: c.get("choose").i64().to_vec(),
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn fixture_inputs_through_the_estimator_match_pytorch() {
+    let est = shipped();
+    let all = cases("pose_net");
+    let inputs = fixture_inputs(&all);
     let out = est.run_inputs(&inputs).unwrap();
     for (c, o) in all.iter().zip(out) {
         let e = o.expect("estimated");
@@ -252,14 +256,7 @@ fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
     let report = tricons::pose::rewrite::rewrite(&mut fast);
     assert_eq!((report.reduce_max, report.upsample), (6, 3), "the shipped graph's nodes");
     let all = cases("pose_net");
-    let inputs: Vec<PoseInput> = all
-        .iter()
-        .map(|c| PoseInput {
-            rgb: c.get("rgb").f32().to_vec(),
-            pts: c.get("pts").f32().to_vec(),
-            choose: c.get("choose").i64().to_vec(),
-        })
-        .collect();
+    let inputs = fixture_inputs(&all);
     let run = |proto| {
         let plan = est.plan_variant(proto).unwrap();
         plan.run(est.input_tensors(&inputs).unwrap()).unwrap()

@@ -33,6 +33,7 @@ pub mod gather;
 pub mod knn;
 pub mod nms;
 pub mod profile;
+pub mod proto;
 pub mod qconv;
 pub mod qlinear;
 pub mod reduce_max;

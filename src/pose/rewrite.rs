@@ -9,7 +9,9 @@
 //!
 //! Anything else is left alone; the report counts what was replaced.
 
-use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, attribute_proto, tensor_proto};
+use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, attribute_proto};
+
+use crate::ops::proto::{self, attr};
 
 /// Domain of the replacement nodes.
 const DOMAIN: &str = "ai.tricons";
@@ -21,10 +23,6 @@ pub struct RewriteReport {
     pub reduce_max: usize,
     /// `Resize` nodes now `BilinearUpsample2x`.
     pub upsample: usize,
-}
-
-fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
-    node.attribute.iter().find(|a| a.name == name)
 }
 
 fn attr_i(node: &NodeProto, name: &str, default: i64) -> i64 {
@@ -46,24 +44,7 @@ fn int_attr(name: &str, value: i64) -> AttributeProto {
 
 /// An f32 constant (initializer or `Constant` node) by name.
 fn constant_f32(graph: &GraphProto, name: &str) -> Option<Vec<f32>> {
-    let t = graph.initializer.iter().find(|t| t.name == name).or_else(|| {
-        graph
-            .node
-            .iter()
-            .find(|n| n.op_type == "Constant" && n.output.first().is_some_and(|o| o == name))
-            .and_then(|n| attr(n, "value"))
-            .and_then(|a| a.t.as_ref())
-    })?;
-    if t.data_type != tensor_proto::DataType::Float as i32 {
-        return None;
-    }
-    if !t.float_data.is_empty() {
-        return Some(t.float_data.clone());
-    }
-    let raw = &t.raw_data;
-    raw.len()
-        .is_multiple_of(4)
-        .then(|| raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    proto::constant(graph, name).and_then(proto::tensor_f32)
 }
 
 /// `ReduceMaxAxis` for a `ReduceMax` with a single non-negative `axes` attribute (opset

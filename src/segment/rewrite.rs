@@ -19,6 +19,8 @@ use tract_onnx::pb::{
     AttributeProto, GraphProto, ModelProto, NodeProto, TensorProto, ValueInfoProto, attribute_proto, tensor_proto,
 };
 
+use crate::ops::proto::{self, attr};
+
 /// Graph output added for the padded mask probabilities `(N, 1, M + 2, M + 2)`.
 pub const PASTE_MASKS_OUTPUT: &str = "tricons.paste.masks";
 /// Graph output added for the integer paste boxes `(N, 4)` (x0, y0, x1, y1).
@@ -43,10 +45,6 @@ pub fn rewrite(model: &mut ModelProto) -> Result<RewriteReport, String> {
     let pasted_output = cut_paste_loop(graph)?;
     let slices_clamped = clamp_slices(graph);
     Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output })
-}
-
-fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
-    node.attribute.iter().find(|a| a.name == name)
 }
 
 /// Replace `If(cond) then {constants} else {work}` by the else-branch's nodes.
@@ -171,28 +169,7 @@ fn cut_paste_loop(graph: &mut GraphProto) -> Result<Option<String>, String> {
 
 /// An int64 constant (initializer or `Constant` node) by name.
 fn constant_i64(graph: &GraphProto, name: &str) -> Option<Vec<i64>> {
-    let t = graph.initializer.iter().find(|t| t.name == name).or_else(|| {
-        graph
-            .node
-            .iter()
-            .find(|n| n.op_type == "Constant" && n.output.first().is_some_and(|o| o == name))
-            .and_then(|n| attr(n, "value"))
-            .and_then(|a| a.t.as_ref())
-    })?;
-    tensor_i64(t)
-}
-
-fn tensor_i64(t: &TensorProto) -> Option<Vec<i64>> {
-    if t.data_type != tensor_proto::DataType::Int64 as i32 {
-        return None;
-    }
-    if !t.int64_data.is_empty() {
-        return Some(t.int64_data.clone());
-    }
-    let raw = &t.raw_data;
-    raw.len()
-        .is_multiple_of(8)
-        .then(|| raw.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().unwrap_or([0; 8]))).collect())
+    proto::constant(graph, name).and_then(proto::tensor_i64)
 }
 
 /// Constant slice ends at or above this mean "to the end" (torch writes `i64::MAX`) and
@@ -265,22 +242,11 @@ const SCORE_PATH_OPS: [&str; 7] = ["Reshape", "Slice", "Flatten", "Gather", "Squ
 
 /// A scalar f32 constant (initializer or `Constant` node) by name.
 fn constant_f32_scalar(graph: &GraphProto, name: &str) -> Option<f32> {
-    let t = graph.initializer.iter().find(|t| t.name == name).or_else(|| {
-        graph
-            .node
-            .iter()
-            .find(|n| n.op_type == "Constant" && n.output.first().is_some_and(|o| o == name))
-            .and_then(|n| attr(n, "value"))
-            .and_then(|a| a.t.as_ref())
-    })?;
-    if t.data_type != tensor_proto::DataType::Float as i32 || t.dims.iter().product::<i64>() != 1 {
+    let t = proto::constant(graph, name)?;
+    if t.dims.iter().product::<i64>() != 1 {
         return None;
     }
-    match (t.float_data.first(), t.raw_data.get(..4)) {
-        (Some(&v), _) => Some(v),
-        (None, Some(b)) => Some(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-        _ => None,
-    }
+    proto::tensor_f32(t)?.first().copied()
 }
 
 /// The graph's detection score floor: the one `Greater(scores, c)` with a scalar f32
