@@ -270,3 +270,34 @@ fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
         assert_eq!(bits(x), bits(y), "output {k}");
     }
 }
+
+/// Batch normalisation folded into the products before it (`pose::fold`, what the
+/// estimator loads) against the graph as exported, both run by tract on fixtures: every
+/// output within 1e-5 of its largest magnitude, and every BatchNormalization folded.
+#[test]
+fn batch_norm_folding_matches_the_unfolded_graph() {
+    use tract_onnx::prelude::*;
+    let est = shipped();
+    let plain = est.float_proto().unwrap();
+    let mut folded = plain.clone();
+    let report = tricons::pose::fold::fold_batch_norms(&mut folded);
+    let count = |m: &tract_onnx::pb::ModelProto| {
+        m.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == "BatchNormalization").count()
+    };
+    assert_eq!((count(&plain), report.batch_norms, count(&folded)), (24, 24, 0));
+    let all = cases("pose_net");
+    let inputs = fixture_inputs(&all[..all.len().min(3)]);
+    let run = |proto| {
+        let plan = est.plan_variant(proto).unwrap();
+        plan.run(est.input_tensors(&inputs).unwrap()).unwrap()
+    };
+    let (a, b) = (run(&plain), run(&folded));
+    assert_eq!(a.len(), b.len());
+    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        let v = |t: &TValue| t.try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec();
+        let (x, y) = (v(x), v(y));
+        let scale = x.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let worst = x.iter().zip(&y).fold(0f32, |m, (p, q)| m.max((p - q).abs()));
+        assert!(worst <= 1e-5 * scale, "output {k}: max difference {worst} at scale {scale}");
+    }
+}

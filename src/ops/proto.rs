@@ -1,11 +1,27 @@
 //! Helpers of the load-time rewrites on the ONNX protobuf (the Mask R-CNN's in
-//! `segment::rewrite`, the pose graph's in `pose::rewrite`): attributes and constants.
+//! `segment::rewrite`, the pose graph's in `pose::rewrite` and `pose::fold`, int8's in
+//! `quant::rewrite`): attributes and constants.
 
 use tract_onnx::pb::{AttributeProto, GraphProto, NodeProto, TensorProto, tensor_proto};
 
 /// A node's attribute by name.
 pub fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
     node.attribute.iter().find(|a| a.name == name)
+}
+
+/// An integer attribute, `default` when absent.
+pub fn attr_i(node: &NodeProto, name: &str, default: i64) -> i64 {
+    attr(node, name).map_or(default, |a| a.i)
+}
+
+/// A float attribute, `default` when absent.
+pub fn attr_f(node: &NodeProto, name: &str, default: f32) -> f32 {
+    attr(node, name).map_or(default, |a| a.f)
+}
+
+/// A string attribute, `default` when absent (or not UTF-8: empty).
+pub fn attr_s<'a>(node: &'a NodeProto, name: &str, default: &'a str) -> &'a str {
+    attr(node, name).map_or(default, |a| std::str::from_utf8(&a.s).unwrap_or(""))
 }
 
 /// A constant tensor by name: an initializer, or the value of the `Constant` node writing it.

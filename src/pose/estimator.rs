@@ -142,14 +142,30 @@ impl PoseEstimator {
         };
         let kernels = crate::pose::rewrite::rewrite(&mut proto);
         log::debug!("{}: {kernels:?}", onnx_path.display());
-        let inference = onnx.model_for_proto_model(&proto).map_err(model_err)?;
         let cfg = card.preprocess_config();
         // the graph as exported (symbolic batch) is checked against the card, then typed
         // again with every input dimension concrete (one instance)
-        let symbolic = inference.clone().into_typed().map_err(model_err)?;
+        let inference = onnx.model_for_proto_model(&proto).map_err(model_err)?;
+        let symbolic = inference.into_typed().map_err(model_err)?;
         check_inputs(&symbolic, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
         drop(symbolic);
-        let plan = optimise(concrete_batch1(inference, &cfg).map_err(model_err)?).map_err(model_err)?;
+        let mut folded = proto.clone();
+        let report = crate::pose::fold::fold_batch_norms(&mut folded);
+        let concrete = |proto: &ModelProto| {
+            onnx.model_for_proto_model(proto).and_then(|m| concrete_batch1(m, &cfg)).and_then(optimise)
+        };
+        let plan = match concrete(&folded) {
+            Ok(plan) => {
+                log::debug!("{}: {report:?}", onnx_path.display());
+                plan
+            }
+            // a folded product whose input is not rank 2 (see pose::fold): the graph as it was
+            Err(e) if report != crate::pose::fold::FoldReport::default() => {
+                log::warn!("{}: batch normalisation not folded ({e:#})", onnx_path.display());
+                concrete(&proto).map_err(model_err)?
+            }
+            Err(e) => return Err(model_err(e)),
+        };
         Ok(PoseEstimator { card, card_path, cfg, plan, quantized, pool: None })
     }
 

@@ -3,10 +3,12 @@
 //! [`card`] reads the model card that drives every size and constant, [`preprocess`]
 //! builds the network inputs exactly as training did, [`rewrite`] swaps the standard
 //! nodes tract runs slowly for exact `ai.tricons` kernels at load, [`estimator`] runs
-//! the graph ([`PoseEstimator`]).
+//! the graph ([`PoseEstimator`]) after [`fold`] has folded batch normalisation into
+//! the weights before it.
 
 pub mod card;
 pub mod estimator;
+pub mod fold;
 pub mod preprocess;
 pub mod rewrite;
 

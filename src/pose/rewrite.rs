@@ -11,7 +11,7 @@
 
 use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, attribute_proto};
 
-use crate::ops::proto::{self, attr};
+use crate::ops::proto::{self, attr, attr_i, attr_s};
 
 /// Domain of the replacement nodes.
 const DOMAIN: &str = "ai.tricons";
@@ -23,14 +23,6 @@ pub struct RewriteReport {
     pub reduce_max: usize,
     /// `Resize` nodes now `BilinearUpsample2x`.
     pub upsample: usize,
-}
-
-fn attr_i(node: &NodeProto, name: &str, default: i64) -> i64 {
-    attr(node, name).map_or(default, |a| a.i)
-}
-
-fn attr_s<'a>(node: &'a NodeProto, name: &str, default: &'a str) -> &'a str {
-    attr(node, name).map_or(default, |a| std::str::from_utf8(&a.s).unwrap_or(""))
 }
 
 fn int_attr(name: &str, value: i64) -> AttributeProto {

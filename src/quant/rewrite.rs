@@ -16,6 +16,7 @@ use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, TensorPr
 
 use super::params::QParams;
 use super::profile::QuantProfile;
+use crate::ops::proto::{attr, attr_f, attr_i};
 
 /// ONNX domain of the int8 nodes.
 pub const DOMAIN: &str = "ai.tricons";
@@ -43,18 +44,6 @@ impl Candidate {
         let i = if fused == 0 { self.index } else { self.chain[fused - 1].1 };
         &graph.node[i].output[0]
     }
-}
-
-fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
-    node.attribute.iter().find(|a| a.name == name)
-}
-
-fn attr_i(node: &NodeProto, name: &str, default: i64) -> i64 {
-    attr(node, name).map(|a| a.i).unwrap_or(default)
-}
-
-fn attr_f(node: &NodeProto, name: &str, default: f32) -> f32 {
-    attr(node, name).map(|a| a.f).unwrap_or(default)
 }
 
 /// Float constants of a graph: initializers and `Constant` nodes, by tensor name.
@@ -236,14 +225,14 @@ pub fn weight_matrix(node: &NodeProto, consts: &Constants) -> Result<Option<Weig
 }
 
 /// The constant `[n]` addend of `add` (whose other input is `x`).
-fn bias_vector(add: &NodeProto, x: &str, consts: &Constants, n: usize) -> Option<Vec<f32>> {
+pub fn bias_vector(add: &NodeProto, x: &str, consts: &Constants, n: usize) -> Option<Vec<f32>> {
     let other = add.input.iter().find(|i| i.as_str() != x)?;
     let (dims, v) = consts.f32(other)?;
     (v.len() == n && dims.iter().rev().skip(1).all(|&d| d == 1)).then_some(v)
 }
 
 /// `(multiplier, offset)` per channel of an inference-mode `BatchNormalization`.
-fn batch_norm(bn: &NodeProto, consts: &Constants, n: usize) -> Option<(Vec<f32>, Vec<f32>)> {
+pub fn batch_norm(bn: &NodeProto, consts: &Constants, n: usize) -> Option<(Vec<f32>, Vec<f32>)> {
     let get = |i: usize| consts.f32(bn.input.get(i)?).map(|(_, v)| v).filter(|v| v.len() == n);
     let (gamma, beta, mean, var) = (get(1)?, get(2)?, get(3)?, get(4)?);
     let eps = attr_f(bn, "epsilon", 1e-5);
