@@ -12,6 +12,7 @@ use std::path::Path;
 
 /// A decoded PNG before interpretation: size, layout and raw samples
 /// (16-bit samples are big-endian pairs, as PNG stores them).
+#[derive(Debug)]
 pub struct RawPng {
     /// Width in pixels.
     pub width: u32,
@@ -37,8 +38,56 @@ impl RawPng {
     }
 }
 
-/// Decodes any PNG, expanding palettes and sub-byte grayscale to 8 bits.
-pub fn read_png(path: &Path) -> Result<RawPng> {
+/// The most pixels a PNG may declare when no exact size is expected: 8K UHD (7680 x 4320)
+/// fits; one decode then allocates at most 256 MiB (16-bit RGBA).
+pub const MAX_PIXELS: u64 = 1 << 25;
+
+/// The size a PNG may declare, checked against its header before any pixel buffer is
+/// allocated (a 60-byte file can claim 60000 x 60000 pixels).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SizeLimit {
+    /// Exactly this width and height, e.g. a recording's frame size from its manifest.
+    Exactly {
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
+        /// Where the size comes from, for the error ("as in the manifest").
+        source: &'static str,
+    },
+    /// Any size up to [`MAX_PIXELS`] pixels.
+    Capped,
+}
+
+impl SizeLimit {
+    /// `Exactly` the size of an image already read (e.g. the colour image of the same frame).
+    pub fn like(width: u32, height: u32, source: &'static str) -> SizeLimit {
+        SizeLimit::Exactly { width, height, source }
+    }
+
+    fn check(self, path: &Path, width: u32, height: u32) -> Result<()> {
+        match self {
+            SizeLimit::Exactly { width: w, height: h, source } if (width, height) != (w, h) => {
+                Err(Error::ImageFormat {
+                    path: path.to_path_buf(),
+                    expected: format!("{w}x{h} {source}"),
+                    found: format!("{width}x{height}"),
+                })
+            }
+            SizeLimit::Capped if u64::from(width) * u64::from(height) > MAX_PIXELS => Err(Error::ImageFormat {
+                path: path.to_path_buf(),
+                expected: format!("at most {MAX_PIXELS} pixels"),
+                found: format!("a header declaring {width}x{height}"),
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// Decodes any PNG, expanding palettes and sub-byte grayscale to 8 bits. The header's
+/// size is checked against `limit` before the pixels are allocated, and the decoder's own
+/// allocations (metadata chunks) are bounded by the png crate's default limit.
+pub fn read_png(path: &Path, limit: SizeLimit) -> Result<RawPng> {
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let png_err = |e: png::DecodingError| match e {
         png::DecodingError::IoError(io) => Error::io(path, io),
@@ -47,6 +96,8 @@ pub fn read_png(path: &Path) -> Result<RawPng> {
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::EXPAND);
     let mut reader = decoder.read_info().map_err(png_err)?;
+    let (width, height) = (reader.info().width, reader.info().height);
+    limit.check(path, width, height)?;
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| Error::Png { path: path.to_path_buf(), message: "image too large".into() })?;
@@ -61,8 +112,8 @@ fn wrong_format(path: &Path, expected: &str, raw: &RawPng) -> Error {
 }
 
 /// Reads an 8-bit RGB (or RGBA, alpha dropped) colour PNG.
-pub fn read_color_png(path: &Path) -> Result<ColorImage> {
-    let raw = read_png(path)?;
+pub fn read_color_png(path: &Path, limit: SizeLimit) -> Result<ColorImage> {
+    let raw = read_png(path, limit)?;
     let data = match (raw.color_type, raw.bit_depth) {
         (png::ColorType::Rgb, png::BitDepth::Eight) => raw.data,
         (png::ColorType::Rgba, png::BitDepth::Eight) => {
@@ -74,8 +125,8 @@ pub fn read_color_png(path: &Path) -> Result<ColorImage> {
 }
 
 /// Reads a 16-bit grayscale depth PNG; `depth_scale_m` is metres per unit.
-pub fn read_depth_png(path: &Path, depth_scale_m: f64) -> Result<DepthImage> {
-    let raw = read_png(path)?;
+pub fn read_depth_png(path: &Path, depth_scale_m: f64, limit: SizeLimit) -> Result<DepthImage> {
+    let raw = read_png(path, limit)?;
     if (raw.color_type, raw.bit_depth) != (png::ColorType::Grayscale, png::BitDepth::Sixteen) {
         return Err(wrong_format(path, "16-bit grayscale depth", &raw));
     }
@@ -83,8 +134,8 @@ pub fn read_depth_png(path: &Path, depth_scale_m: f64) -> Result<DepthImage> {
 }
 
 /// Reads an 8-bit grayscale label (instance mask) PNG.
-pub fn read_label_png(path: &Path) -> Result<LabelImage> {
-    let raw = read_png(path)?;
+pub fn read_label_png(path: &Path, limit: SizeLimit) -> Result<LabelImage> {
+    let raw = read_png(path, limit)?;
     if (raw.color_type, raw.bit_depth) != (png::ColorType::Grayscale, png::BitDepth::Eight) {
         return Err(wrong_format(path, "8-bit grayscale instance mask", &raw));
     }
@@ -92,8 +143,8 @@ pub fn read_label_png(path: &Path) -> Result<LabelImage> {
 }
 
 /// Reads a NOCS map: 16-bit RGB (tricons) or 8-bit RGB (NOCS dataset, rescaled).
-pub fn read_nocs_png(path: &Path) -> Result<NocsMap> {
-    let raw = read_png(path)?;
+pub fn read_nocs_png(path: &Path, limit: SizeLimit) -> Result<NocsMap> {
+    let raw = read_png(path, limit)?;
     let data = match (raw.color_type, raw.bit_depth) {
         (png::ColorType::Rgb, png::BitDepth::Sixteen) => raw.samples_u16(),
         (png::ColorType::Rgb, png::BitDepth::Eight) => raw.data.iter().map(|&v| u16::from(v) * 257).collect(),
@@ -174,10 +225,10 @@ mod tests {
         write_depth_png(&p("d.png"), &depth).unwrap();
         write_label_png(&p("m.png"), &label).unwrap();
         write_nocs_png(&p("n.png"), &nocs).unwrap();
-        assert_eq!(read_color_png(&p("c.png")).unwrap(), color);
-        assert_eq!(read_depth_png(&p("d.png"), 0.001).unwrap(), depth);
-        assert_eq!(read_label_png(&p("m.png")).unwrap(), label);
-        assert_eq!(read_nocs_png(&p("n.png")).unwrap(), nocs);
+        assert_eq!(read_color_png(&p("c.png"), SizeLimit::Capped).unwrap(), color);
+        assert_eq!(read_depth_png(&p("d.png"), 0.001, SizeLimit::Capped).unwrap(), depth);
+        assert_eq!(read_label_png(&p("m.png"), SizeLimit::Capped).unwrap(), label);
+        assert_eq!(read_nocs_png(&p("n.png"), SizeLimit::Capped).unwrap(), nocs);
     }
 
     #[test]
@@ -185,7 +236,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("000_depth.png");
         write_label_png(&path, &LabelImage::new(4, 4)).unwrap();
-        let err = read_depth_png(&path, 0.001).unwrap_err().to_string();
+        let err = read_depth_png(&path, 0.001, SizeLimit::Capped).unwrap_err().to_string();
         assert!(
             err.contains("000_depth.png") && err.contains("16-bit grayscale depth") && err.contains("8-bit"),
             "{err}"
@@ -199,9 +250,52 @@ mod tests {
         let mut bytes = encode_png(4, 4, png::ColorType::Rgb, png::BitDepth::Eight, &[7; 48]).unwrap();
         bytes.truncate(bytes.len() / 2);
         std::fs::write(&path, &bytes).unwrap();
-        let err = read_color_png(&path).unwrap_err().to_string();
+        let err = read_color_png(&path, SizeLimit::Capped).unwrap_err().to_string();
         assert!(err.contains("bad.png"), "{err}");
         std::fs::write(&path, b"not a png at all").unwrap();
-        assert!(read_color_png(&path).unwrap_err().to_string().contains("bad.png"));
+        assert!(read_color_png(&path, SizeLimit::Capped).unwrap_err().to_string().contains("bad.png"));
+    }
+
+    /// A PNG of an IHDR declaring `width` x `height` (16-bit RGBA), one IDAT holding no
+    /// pixels and an IEND: the shape of a size bomb, 77 bytes.
+    pub(crate) fn header_only_png(width: u32, height: u32) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut encoder = png::Encoder::new(&mut out, width, height);
+        encoder.set_color(png::ColorType::Rgba);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        let mut writer = encoder.write_header().unwrap();
+        // zlib stream of nothing
+        writer.write_chunk(png::chunk::IDAT, &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]).unwrap();
+        drop(writer); // writes the IEND
+        out
+    }
+
+    #[test]
+    fn a_size_bomb_is_refused_before_allocating() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bomb.png");
+        std::fs::write(&path, header_only_png(60_000, 60_000)).unwrap();
+        // decoding it would allocate 28.8 GB: the header check must refuse it first
+        let err = read_png(&path, SizeLimit::Capped).unwrap_err().to_string();
+        assert!(err.contains("bomb.png") && err.contains("60000x60000"), "{err}");
+        let exact = SizeLimit::Exactly { width: 640, height: 480, source: "as in the manifest" };
+        let err = read_png(&path, exact).unwrap_err().to_string();
+        assert!(err.contains("640x480 as in the manifest") && err.contains("60000x60000"), "{err}");
+        // within the limits, the same kind of file reaches the decoder (no pixel data: an error, not a panic)
+        std::fs::write(&path, header_only_png(640, 480)).unwrap();
+        let err = read_png(&path, exact).unwrap_err().to_string();
+        assert!(err.contains("not a readable PNG"), "{err}");
+    }
+
+    #[test]
+    fn the_cap_is_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.png");
+        // one pixel over the cap is refused by the header check ...
+        std::fs::write(&path, header_only_png(1 << 13, (1 << 12) + 1)).unwrap();
+        assert!(read_png(&path, SizeLimit::Capped).unwrap_err().to_string().contains("at most"));
+        // ... the cap itself passes it (and fails later, for lack of pixel data)
+        std::fs::write(&path, header_only_png(1 << 13, 1 << 12)).unwrap();
+        assert!(!read_png(&path, SizeLimit::Capped).unwrap_err().to_string().contains("at most"));
     }
 }

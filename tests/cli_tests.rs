@@ -159,7 +159,7 @@ fn replay_of_the_demo_recording_writes_predictions_overlays_and_scores_them() {
     assert!(out.with_extension("eval.json").is_file());
     for l in &lines {
         let png = overlays.join(format!("{}_overlay.png", l["frame"].as_str().unwrap()));
-        let img = tricons::image_io::read_color_png(&png).unwrap();
+        let img = tricons::image_io::read_color_png(&png, tricons::image_io::SizeLimit::Capped).unwrap();
         assert_eq!((img.width, img.height), (640, 480));
     }
     // the same seed gives the same predictions
@@ -252,7 +252,11 @@ fn segment_writes_records_label_images_and_overlays() {
         text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(records.len(), 4);
     for r in &records {
-        let labels = tricons::image_io::read_label_png(&out.join(format!("{}_labels.png", r.frame))).unwrap();
+        let labels = tricons::image_io::read_label_png(
+            &out.join(format!("{}_labels.png", r.frame)),
+            tricons::image_io::SizeLimit::Capped,
+        )
+        .unwrap();
         assert_eq!((labels.width, labels.height), (640, 480));
         for (k, inst) in r.instances.iter().enumerate() {
             let mask = tricons::output::segments::rle_to_mask(&inst.mask_rle, 640 * 480).unwrap();

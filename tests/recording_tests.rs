@@ -134,6 +134,39 @@ fn image_size_must_match_the_manifest() {
     assert!(err.contains("000000_color.png") && err.contains("33x24"), "{err}");
 }
 
+/// A header declaring 60000 x 60000 16-bit RGBA pixels (28.8 GB decoded), no pixel data.
+fn size_bomb() -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, 60_000, 60_000);
+    encoder.set_color(png::ColorType::Rgba);
+    encoder.set_depth(png::BitDepth::Sixteen);
+    let mut writer = encoder.write_header().unwrap();
+    writer.write_chunk(png::chunk::IDAT, &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]).unwrap();
+    drop(writer);
+    out
+}
+
+/// Every image of a frame is checked against the manifest's size before it is decoded:
+/// a PNG size bomb is a clear error naming the file, not an allocation abort.
+#[test]
+fn png_size_bombs_are_refused_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 1);
+    for name in ["000000_color.png", "000000_depth.png", "000000_mask.png", "000000_coord.png"] {
+        let path = dir.path().join(name);
+        let good = fs::read(&path).unwrap();
+        fs::write(&path, size_bomb()).unwrap();
+        let rec = open_recording(dir.path()).unwrap();
+        let err = if name.contains("color") || name.contains("depth") {
+            err_text(rec.read_frame(0).unwrap_err())
+        } else {
+            err_text(rec.read_annotations(0).unwrap_err())
+        };
+        assert!(err.contains(name) && err.contains("60000x60000") && err.contains("32x24 as in the manifest"), "{err}");
+        fs::write(&path, good).unwrap();
+    }
+}
+
 #[test]
 fn malformed_manifest_and_annotations_name_file_and_field() {
     let dir = tempfile::tempdir().unwrap();

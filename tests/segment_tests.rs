@@ -229,7 +229,7 @@ fn shipped_segmenter_matches_onnxruntime() {
         ("maskrcnn-light_blank.json", "tests/fixtures/segment/blank.png"),
     ] {
         let fx = fixture(fixture_name);
-        let img = tricons::image_io::read_color_png(&root.join(image)).unwrap();
+        let img = tricons::image_io::read_color_png(&root.join(image), tricons::image_io::SizeLimit::Capped).unwrap();
         let n = (img.width * img.height) as usize;
         let mut ours = seg.segment(&img).unwrap();
         let want = fx["instances"].as_array().unwrap();
@@ -278,7 +278,11 @@ fn shipped_segmenter_matches_onnxruntime() {
 fn frames_without_objects_run_and_follow_threshold_and_size() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
-    let img = tricons::image_io::read_color_png(&root.join("tests/fixtures/segment/blank.png")).unwrap();
+    let img = tricons::image_io::read_color_png(
+        &root.join("tests/fixtures/segment/blank.png"),
+        tricons::image_io::SizeLimit::Capped,
+    )
+    .unwrap();
     let found = seg.segment(&img).unwrap();
     assert!(found.iter().all(|d| d.score >= 0.5 && d.mask.len() == 640 * 480));
     seg.set_score_threshold(1.0);
@@ -302,7 +306,7 @@ fn raised_score_floor_keeps_exactly_the_detections_above_the_threshold() {
     // one frame (24 detections above the graph's floor, 7 above the card's): this suite
     // also runs under qemu in CI
     for image in ["tests/data/synthnocs-demo/000000_color.png"] {
-        let img = tricons::image_io::read_color_png(&root.join(image)).unwrap();
+        let img = tricons::image_io::read_color_png(&root.join(image), tricons::image_io::SizeLimit::Capped).unwrap();
         let raw = seg.detect_raw(&img).unwrap();
         let above: Vec<usize> = (0..raw.scores.len()).filter(|&i| raw.scores[i] >= threshold).collect();
         assert!(above.len() < raw.scores.len(), "{image}: some detections fall below the threshold");

@@ -15,7 +15,7 @@ use crate::category::Category;
 use crate::error::{Error, Result};
 use crate::frame::{DEPTH_SCALE_MM, DepthImage, Intrinsics, LabelImage, NOCS_MAP_MAX, NocsMap, RgbdFrame};
 use crate::geometry::{Vec3, fit_similarity_robust};
-use crate::image_io::{read_color_png, read_nocs_png, read_png};
+use crate::image_io::{SizeLimit, read_color_png, read_nocs_png, read_png};
 use std::path::{Path, PathBuf};
 
 /// Background value of NOCS dataset masks.
@@ -67,6 +67,12 @@ impl NocsLayout {
         Ok(NocsLayout { root: root.to_path_buf(), ids, intrinsics })
     }
 
+    /// Every image of a frame has the intrinsics' size (checked before decoding).
+    fn frame_size(&self) -> SizeLimit {
+        let k = &self.intrinsics;
+        SizeLimit::Exactly { width: k.width, height: k.height, source: "as in the layout's intrinsics" }
+    }
+
     fn path(&self, index: usize, suffix: &str) -> PathBuf {
         self.root.join(format!("{}{suffix}", self.ids[index]))
     }
@@ -85,7 +91,7 @@ impl NocsLayout {
     fn read_depth(&self, index: usize) -> Result<DepthImage> {
         let real = self.path(index, "_depth.png");
         let path = if real.exists() { real } else { self.path(index, "_composed.png") };
-        let raw = read_png(&path)?;
+        let raw = read_png(&path, self.frame_size())?;
         let data = match (raw.color_type, raw.bit_depth) {
             (png::ColorType::Grayscale, png::BitDepth::Sixteen) => raw.samples_u16(),
             // CAMERA25 composed depth: 8-bit, depth = G * 256 + R (file RGB order).
@@ -133,7 +139,7 @@ impl NocsLayout {
 
     fn read_mask(&self, index: usize) -> Result<LabelImage> {
         let path = self.path(index, "_mask.png");
-        let raw = read_png(&path)?;
+        let raw = read_png(&path, self.frame_size())?;
         let channels = match (raw.color_type, raw.bit_depth) {
             (png::ColorType::Grayscale, png::BitDepth::Eight) => 1,
             (png::ColorType::Rgb, png::BitDepth::Eight) => 3,
@@ -147,7 +153,7 @@ impl NocsLayout {
     }
 
     fn read_coord(&self, index: usize) -> Result<NocsMap> {
-        let mut map = read_nocs_png(&self.path(index, "_coord.png"))?;
+        let mut map = read_nocs_png(&self.path(index, "_coord.png"), self.frame_size())?;
         // The dataset stores z flipped (its loader uses 1 - z).
         for z in map.data.iter_mut().skip(2).step_by(3) {
             *z = NOCS_MAP_MAX - *z;
@@ -176,7 +182,7 @@ impl Recording for NocsLayout {
     fn read_frame(&self, index: usize) -> Result<RgbdFrame> {
         self.check_index(index)?;
         let color_path = self.path(index, COLOR_SUFFIX);
-        let color = read_color_png(&color_path)?;
+        let color = read_color_png(&color_path, self.frame_size())?;
         let depth = self.read_depth(index)?;
         if (color.width, color.height) != (depth.width, depth.height) {
             return Err(Error::ImageFormat {

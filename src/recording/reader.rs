@@ -5,7 +5,7 @@ use super::annotations::{AnnotationsFile, FrameAnnotations, GtInstance};
 use super::manifest::{MANIFEST_FILE, Manifest};
 use crate::error::{Error, Result};
 use crate::frame::{Intrinsics, RgbdFrame};
-use crate::image_io::{read_color_png, read_depth_png, read_label_png, read_nocs_png};
+use crate::image_io::{SizeLimit, read_color_png, read_depth_png, read_label_png, read_nocs_png};
 use std::path::{Path, PathBuf};
 
 /// A recording in the tricons format, opened for reading.
@@ -56,16 +56,10 @@ impl TriconsRecording {
         Ok(Some(file))
     }
 
-    fn check_size(&self, path: &Path, width: u32, height: u32) -> Result<()> {
+    /// Every image of a frame has the manifest's size (checked before decoding).
+    fn frame_size(&self) -> SizeLimit {
         let k = &self.manifest.intrinsics;
-        if (width, height) != (k.width, k.height) {
-            return Err(Error::ImageFormat {
-                path: path.to_path_buf(),
-                expected: format!("{}x{} as in the manifest", k.width, k.height),
-                found: format!("{width}x{height}"),
-            });
-        }
-        Ok(())
+        SizeLimit::Exactly { width: k.width, height: k.height, source: "as in the manifest" }
     }
 }
 
@@ -95,10 +89,8 @@ impl Recording for TriconsRecording {
         let entry = self.entry(index)?;
         let color_path = self.root.join(&entry.color);
         let depth_path = self.root.join(&entry.depth);
-        let color = read_color_png(&color_path)?;
-        self.check_size(&color_path, color.width, color.height)?;
-        let depth = read_depth_png(&depth_path, self.manifest.depth_scale_m)?;
-        self.check_size(&depth_path, depth.width, depth.height)?;
+        let color = read_color_png(&color_path, self.frame_size())?;
+        let depth = read_depth_png(&depth_path, self.manifest.depth_scale_m, self.frame_size())?;
         Ok(RgbdFrame { color, depth, intrinsics: self.manifest.intrinsics, timestamp_s: entry.timestamp_s })
     }
 
@@ -113,18 +105,14 @@ impl Recording for TriconsRecording {
         let mask = match &file.mask {
             Some(name) => {
                 let path = self.root.join(name);
-                let m = read_label_png(&path)?;
-                self.check_size(&path, m.width, m.height)?;
-                Some(m)
+                Some(read_label_png(&path, self.frame_size())?)
             }
             None => None,
         };
         let nocs = match &file.nocs {
             Some(name) => {
                 let path = self.root.join(name);
-                let m = read_nocs_png(&path)?;
-                self.check_size(&path, m.width, m.height)?;
-                Some(m)
+                Some(read_nocs_png(&path, self.frame_size())?)
             }
             None => None,
         };

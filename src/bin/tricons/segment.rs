@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use tricons::atomic::{write_atomic, write_atomic_with};
-use tricons::image_io::{read_color_png, write_label_png};
+use tricons::image_io::{SizeLimit, read_color_png, write_label_png};
 use tricons::output::segments::{SegRecord, draw_segments, label_image};
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;
@@ -77,7 +77,7 @@ pub fn run(args: Args) -> Result<()> {
             .map(|p| {
                 let id = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());
                 let p = p.clone();
-                let load: FrameLoader = Box::new(move || Ok(read_color_png(&p)?));
+                let load: FrameLoader = Box::new(move || Ok(read_color_png(&p, SizeLimit::Capped)?));
                 (id, load)
             })
             .collect()
