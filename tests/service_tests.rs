@@ -6,5 +6,7 @@ mod common;
 
 #[path = "service/cli.rs"]
 mod cli;
+#[path = "service/http.rs"]
+mod http;
 #[path = "service/pipeline.rs"]
 mod pipeline;

@@ -7,33 +7,50 @@
 //! | `/latest`  | the last result line (204 before the first)                         |
 //! | `/stream`  | every result from now on, JSON Lines, until the client disconnects  |
 //!
-//! Bound to loopback by default (`tricons serve --listen`). A slow `/stream`
-//! client never slows the pipeline: each client has a bounded queue and lines
-//! it cannot take are dropped and counted (`stream_lines_dropped`).
+//! Bound to loopback by default (`tricons serve --listen`); any other address only
+//! when the caller allows it ([`HttpServer::start`], `--listen-any`). A slow `/stream`
+//! client never slows the pipeline: each client has a bounded queue and lines it cannot
+//! take are dropped and counted (`stream_lines_dropped`); a client that stops reading
+//! altogether is disconnected once a write to it has blocked for [`WRITE_TIMEOUT`]
+//! (`http_slow_clients_dropped`).
+//!
+//! Hostile clients are bounded too: a request head must arrive whole within
+//! [`REQUEST_TIMEOUT`] (else 408, `http_request_timeouts`); `/stream` clients take at
+//! most [`MAX_STREAM_CLIENTS`] of the [`MAX_CONNECTIONS`] slots, so the rest stay free
+//! for `/health` and `/metrics` (over the limits: 429 with `Retry-After`,
+//! `http_rejected`, never 503, which means "source reconnecting"). The accept loop
+//! blocks in `accept` (an idle `/health` answers at once) and shutdown wakes it; every
+//! connection thread ends within [`WRITE_TIMEOUT`] of shutdown, whatever its client does.
 
 use super::predictions::FramePredictions;
 use super::sink::Sink;
 use crate::error::{Error, Result};
 use crate::pipeline::{PipelineStats, SourceState, StatsSnapshot};
 use std::io::{Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::{Ipv4Addr, Ipv6Addr, SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Default listen address of `tricons serve`: loopback only.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:7878";
 /// Lines queued per `/stream` client before lines are dropped for it.
 pub const STREAM_CLIENT_QUEUE: usize = 64;
-/// Most connections served at once; more are answered 503.
+/// Most connections served at once; more are answered 429.
 pub const MAX_CONNECTIONS: usize = 32;
-/// How long a client may take to send its request.
-const REQUEST_TIMEOUT: Duration = Duration::from_secs(2);
+/// Most `/stream` clients at once (the other slots stay free for short requests).
+pub const MAX_STREAM_CLIENTS: usize = MAX_CONNECTIONS / 2;
+/// How long a client may take to send its whole request head.
+pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long one write to a client may block before the client is disconnected.
+pub const WRITE_TIMEOUT: Duration = Duration::from_secs(2);
+/// Write deadline while delivering a `/stream` client's last queued lines at shutdown.
+const DRAIN_TIMEOUT: Duration = Duration::from_millis(200);
 /// Largest request head read.
 const MAX_REQUEST_BYTES: usize = 8192;
-/// How often idle loops check for shutdown.
+/// How often a `/stream` connection checks for shutdown.
 const POLL: Duration = Duration::from_millis(50);
 
 /// Fans results out to `/stream` clients and keeps the latest for `/latest`.
@@ -96,12 +113,36 @@ pub struct HttpServer {
     thread: Option<JoinHandle<()>>,
 }
 
+/// Whether `addr` may be bound: loopback always, anything else only with `allow_any`.
+/// Every address it resolves to is checked (a host name may name several).
+pub fn check_listen_address(addr: &str, allow_any: bool) -> Result<Vec<SocketAddr>> {
+    use std::net::ToSocketAddrs;
+    let resolved: Vec<SocketAddr> =
+        addr.to_socket_addrs().map_err(|e| Error::InvalidArgument(format!("listen address {addr:?}: {e}")))?.collect();
+    if resolved.is_empty() {
+        return Err(Error::InvalidArgument(format!("listen address {addr:?} resolves to nothing")));
+    }
+    if let Some(open) = resolved.iter().find(|a| !a.ip().is_loopback()) {
+        if !allow_any {
+            return Err(Error::InvalidArgument(format!(
+                "listen address {addr:?} is {open}, not loopback: the service would be reachable from other \
+                 machines; pass --listen-any (or \"listen_any\": true in the serve config) to allow it"
+            )));
+        }
+        log::warn!("http: listening on {open}, reachable from other machines (--listen-any)");
+    }
+    Ok(resolved)
+}
+
 impl HttpServer {
-    /// Binds `addr` (e.g. `127.0.0.1:7878`; port 0 picks a free one) and serves in the background.
-    pub fn start(addr: &str, stats: Arc<PipelineStats>, hub: Arc<StreamHub>) -> Result<HttpServer> {
-        let listener = TcpListener::bind(addr).map_err(|e| Error::io(format!("listen address {addr}"), e))?;
+    /// Binds `addr` (e.g. `127.0.0.1:7878`; port 0 picks a free one) and serves in the
+    /// background. A non-loopback address is refused unless `allow_any`
+    /// ([`check_listen_address`]).
+    pub fn start(addr: &str, allow_any: bool, stats: Arc<PipelineStats>, hub: Arc<StreamHub>) -> Result<HttpServer> {
+        let resolved = check_listen_address(addr, allow_any)?;
+        let listener =
+            TcpListener::bind(resolved.as_slice()).map_err(|e| Error::io(format!("listen address {addr}"), e))?;
         let local = listener.local_addr().map_err(|e| Error::io(format!("listen address {addr}"), e))?;
-        listener.set_nonblocking(true).map_err(|e| Error::io(format!("listen address {addr}"), e))?;
         let stop = Arc::new(AtomicBool::new(false));
         let thread = {
             let stop = Arc::clone(&stop);
@@ -118,7 +159,9 @@ impl HttpServer {
         self.addr
     }
 
-    /// Stops accepting; `/stream` clients get the lines already queued, then EOF.
+    /// Stops accepting; `/stream` clients get the lines already queued (as far as they
+    /// take them within a short deadline), then EOF. Returns within about
+    /// [`WRITE_TIMEOUT`] whatever the clients do.
     pub fn shutdown(mut self) {
         self.stop_now();
     }
@@ -126,6 +169,14 @@ impl HttpServer {
     fn stop_now(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
         if let Some(t) = self.thread.take() {
+            // wake the blocking accept with a connection of our own
+            let mut wake = self.addr;
+            if wake.ip().is_unspecified() {
+                wake.set_ip(if wake.is_ipv4() { Ipv4Addr::LOCALHOST.into() } else { Ipv6Addr::LOCALHOST.into() });
+            }
+            if let Err(e) = TcpStream::connect_timeout(&wake, Duration::from_secs(1)) {
+                log::warn!("http: cannot wake the accept loop at {wake}: {e}");
+            }
             let _ = t.join();
         }
     }
@@ -137,32 +188,61 @@ impl Drop for HttpServer {
     }
 }
 
+/// Connection slots: all of them, and the `/stream` share.
+struct Slots {
+    active: AtomicUsize,
+    streams: AtomicUsize,
+}
+
+/// Holds one of a counter's slots until dropped.
+struct SlotGuard<'a>(&'a AtomicUsize);
+
+impl Drop for SlotGuard<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// Takes a slot of `counter` if fewer than `max` are taken.
+fn take_slot(counter: &AtomicUsize, max: usize) -> Option<SlotGuard<'_>> {
+    counter.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| (n < max).then_some(n + 1)).ok()?;
+    Some(SlotGuard(counter))
+}
+
 fn accept_loop(listener: TcpListener, stats: Arc<PipelineStats>, hub: Arc<StreamHub>, stop: Arc<AtomicBool>) {
-    let active = Arc::new(AtomicUsize::new(0));
+    let slots = Arc::new(Slots { active: AtomicUsize::new(0), streams: AtomicUsize::new(0) });
     let mut handlers: Vec<JoinHandle<()>> = Vec::new();
-    while !stop.load(Ordering::SeqCst) {
-        match listener.accept() {
+    loop {
+        let accepted = listener.accept();
+        if stop.load(Ordering::SeqCst) {
+            break;
+        }
+        match accepted {
             Ok((mut stream, _)) => {
                 handlers.retain(|h| !h.is_finished());
-                if active.load(Ordering::SeqCst) >= MAX_CONNECTIONS {
-                    let _ = respond(&mut stream, 503, "text/plain", b"too many connections\n");
+                if slots.active.load(Ordering::SeqCst) >= MAX_CONNECTIONS {
+                    stats.http_rejected.fetch_add(1, Ordering::Relaxed);
+                    let _ = stream.set_write_timeout(Some(DRAIN_TIMEOUT));
+                    let _ = busy(&mut stream, "too many connections");
                     continue;
                 }
-                active.fetch_add(1, Ordering::SeqCst);
-                let (stats, hub, stop, active) =
-                    (Arc::clone(&stats), Arc::clone(&hub), Arc::clone(&stop), Arc::clone(&active));
+                slots.active.fetch_add(1, Ordering::SeqCst);
+                let (stats, hub, stop, conn_slots) =
+                    (Arc::clone(&stats), Arc::clone(&hub), Arc::clone(&stop), Arc::clone(&slots));
                 let spawned = std::thread::Builder::new().name("http-conn".into()).spawn(move || {
-                    if let Err(e) = handle(stream, &stats, &hub, &stop) {
+                    let _slot = SlotGuard(&conn_slots.active);
+                    if let Err(e) = handle(stream, &stats, &hub, &stop, &conn_slots.streams) {
                         log::debug!("http: {e}");
                     }
-                    active.fetch_sub(1, Ordering::SeqCst);
                 });
                 match spawned {
                     Ok(h) => handlers.push(h),
-                    Err(e) => log::warn!("http: cannot start a connection thread: {e}"),
+                    Err(e) => {
+                        slots.active.fetch_sub(1, Ordering::SeqCst);
+                        log::warn!("http: cannot start a connection thread: {e}");
+                    }
                 }
             }
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(POLL),
             Err(e) => {
                 log::warn!("http: accept failed: {e}");
                 std::thread::sleep(POLL);
@@ -174,6 +254,18 @@ fn accept_loop(listener: TcpListener, stats: Arc<PipelineStats>, hub: Arc<Stream
     }
 }
 
+/// 429 with a retry hint: the slots are taken (503 would read as "source reconnecting").
+fn busy(stream: &mut TcpStream, why: &str) -> std::io::Result<()> {
+    let body = format!("{why}; retry shortly\n");
+    let head = format!(
+        "HTTP/1.1 429 Too Many Requests\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nRetry-After: 1\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    stream.write_all(head.as_bytes())?;
+    stream.write_all(body.as_bytes())?;
+    stream.flush()
+}
+
 fn respond(stream: &mut TcpStream, status: u16, content_type: &str, body: &[u8]) -> std::io::Result<()> {
     let reason = match status {
         200 => "OK",
@@ -181,6 +273,7 @@ fn respond(stream: &mut TcpStream, status: u16, content_type: &str, body: &[u8])
         404 => "Not Found",
         405 => "Method Not Allowed",
         400 => "Bad Request",
+        408 => "Request Timeout",
         _ => "Service Unavailable",
     };
     let head = format!(
@@ -208,20 +301,86 @@ pub fn health_json(snapshot: &StatsSnapshot) -> String {
     s
 }
 
-fn handle(mut stream: TcpStream, stats: &PipelineStats, hub: &StreamHub, stop: &AtomicBool) -> std::io::Result<()> {
-    stream.set_nonblocking(false)?;
-    stream.set_read_timeout(Some(REQUEST_TIMEOUT))?;
+/// Reads a request head within [`REQUEST_TIMEOUT`] in all (not per read: a client
+/// trickling one byte at a time is cut off too). `Ok(None)`: the deadline passed.
+fn read_head(stream: &mut TcpStream) -> std::io::Result<Option<Vec<u8>>> {
+    let deadline = Instant::now() + REQUEST_TIMEOUT;
     let mut head = Vec::new();
     let mut buf = [0u8; 1024];
     while !head.windows(4).any(|w| w == b"\r\n\r\n") && !head.windows(2).any(|w| w == b"\n\n") {
-        let n = stream.read(&mut buf)?;
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Ok(None);
+        }
+        stream.set_read_timeout(Some(left))?;
+        let n = match stream.read(&mut buf) {
+            Ok(n) => n,
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        };
         if n == 0 {
             break;
         }
         head.extend_from_slice(&buf[..n]);
         if head.len() > MAX_REQUEST_BYTES {
-            return respond(&mut stream, 400, "text/plain", b"request too large\n");
+            break;
         }
+    }
+    Ok(Some(head))
+}
+
+/// Writes all of `bytes` by `deadline` in all (a socket timeout alone is per `write`
+/// call, and a client draining a few bytes now and then would reset it forever).
+fn write_all_by(stream: &mut TcpStream, mut bytes: &[u8], deadline: Instant) -> std::io::Result<()> {
+    use std::io::ErrorKind;
+    while !bytes.is_empty() {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::Error::new(ErrorKind::TimedOut, "write deadline passed"));
+        }
+        stream.set_write_timeout(Some(left))?;
+        match stream.write(bytes) {
+            Ok(0) => return Err(ErrorKind::WriteZero.into()),
+            Ok(n) => bytes = &bytes[n..],
+            Err(e) if e.kind() == ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+/// One line to a `/stream` client within `timeout`; a client that does not take it in
+/// time is counted as dropped (the caller then closes the connection).
+fn send_line(stream: &mut TcpStream, line: &str, timeout: Duration, stats: &PipelineStats) -> std::io::Result<()> {
+    let mut bytes = Vec::with_capacity(line.len() + 1);
+    bytes.extend_from_slice(line.as_bytes());
+    bytes.push(b'\n');
+    let sent = write_all_by(stream, &bytes, Instant::now() + timeout);
+    if let Err(e) = &sent
+        && matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut)
+    {
+        stats.http_slow_clients_dropped.fetch_add(1, Ordering::Relaxed);
+        log::info!("http: dropped a /stream client that stopped reading");
+    }
+    sent
+}
+
+fn handle(
+    mut stream: TcpStream,
+    stats: &PipelineStats,
+    hub: &StreamHub,
+    stop: &AtomicBool,
+    streams: &AtomicUsize,
+) -> std::io::Result<()> {
+    stream.set_write_timeout(Some(WRITE_TIMEOUT))?;
+    let Some(head) = read_head(&mut stream)? else {
+        stats.http_request_timeouts.fetch_add(1, Ordering::Relaxed);
+        return respond(&mut stream, 408, "text/plain", b"request head not received in time\n");
+    };
+    if head.len() > MAX_REQUEST_BYTES {
+        return respond(&mut stream, 400, "text/plain", b"request too large\n");
     }
     let text = String::from_utf8_lossy(&head);
     let mut parts = text.lines().next().unwrap_or("").split_whitespace();
@@ -244,6 +403,10 @@ fn handle(mut stream: TcpStream, stats: &PipelineStats, hub: &StreamHub, stop: &
             None => respond(&mut stream, 204, "application/json", b""),
         },
         "/stream" => {
+            let Some(_slot) = take_slot(streams, MAX_STREAM_CLIENTS) else {
+                stats.http_rejected.fetch_add(1, Ordering::Relaxed);
+                return busy(&mut stream, "too many /stream clients");
+            };
             let rx = hub.subscribe();
             stream.write_all(
                 b"HTTP/1.1 200 OK\r\nContent-Type: application/x-ndjson\r\nCache-Control: no-cache\r\nConnection: close\r\n\r\n",
@@ -251,16 +414,11 @@ fn handle(mut stream: TcpStream, stats: &PipelineStats, hub: &StreamHub, stop: &
             stream.flush()?;
             loop {
                 match rx.recv_timeout(POLL) {
-                    Ok(line) => {
-                        stream.write_all(line.as_bytes())?;
-                        stream.write_all(b"\n")?;
-                        stream.flush()?;
-                    }
+                    Ok(line) => send_line(&mut stream, &line, WRITE_TIMEOUT, stats)?,
                     Err(RecvTimeoutError::Timeout) if stop.load(Ordering::SeqCst) => {
-                        // Deliver what is queued, then end the stream.
+                        // Deliver what is queued (a short deadline per line), then end the stream.
                         while let Ok(line) = rx.try_recv() {
-                            stream.write_all(line.as_bytes())?;
-                            stream.write_all(b"\n")?;
+                            send_line(&mut stream, &line, DRAIN_TIMEOUT, stats)?;
                         }
                         return stream.flush();
                     }

@@ -127,6 +127,12 @@ pub struct StatsSnapshot {
     pub source_reopens: u64,
     /// Result lines not delivered to slow stream clients.
     pub stream_lines_dropped: u64,
+    /// `/stream` clients disconnected because a write to them timed out.
+    pub http_slow_clients_dropped: u64,
+    /// HTTP connections refused because every slot (or every `/stream` slot) was taken.
+    pub http_rejected: u64,
+    /// HTTP clients that did not send a request head in time.
+    pub http_request_timeouts: u64,
     /// Resident memory now, KiB (Linux; 0 elsewhere).
     pub rss_kib: u64,
     /// Peak resident memory of the process, KiB (Linux; 0 elsewhere).
@@ -185,6 +191,12 @@ pub struct PipelineStats {
     pub source_reopens: AtomicU64,
     /// Lines not delivered to slow stream clients.
     pub stream_lines_dropped: AtomicU64,
+    /// `/stream` clients dropped for a timed-out write.
+    pub http_slow_clients_dropped: AtomicU64,
+    /// HTTP connections refused for lack of a slot.
+    pub http_rejected: AtomicU64,
+    /// HTTP request heads not received in time.
+    pub http_request_timeouts: AtomicU64,
     warm_rss_kib: AtomicU64,
     queues: Mutex<Vec<(String, std::sync::Arc<dyn QueueProbe>)>>,
 }
@@ -209,6 +221,9 @@ impl PipelineStats {
             source_errors: AtomicU64::new(0),
             source_reopens: AtomicU64::new(0),
             stream_lines_dropped: AtomicU64::new(0),
+            http_slow_clients_dropped: AtomicU64::new(0),
+            http_rejected: AtomicU64::new(0),
+            http_request_timeouts: AtomicU64::new(0),
             warm_rss_kib: AtomicU64::new(0),
             queues: Mutex::new(Vec::new()),
         }
@@ -307,6 +322,9 @@ impl PipelineStats {
             source_errors: self.source_errors.load(Ordering::Relaxed),
             source_reopens: self.source_reopens.load(Ordering::Relaxed),
             stream_lines_dropped: self.stream_lines_dropped.load(Ordering::Relaxed),
+            http_slow_clients_dropped: self.http_slow_clients_dropped.load(Ordering::Relaxed),
+            http_rejected: self.http_rejected.load(Ordering::Relaxed),
+            http_request_timeouts: self.http_request_timeouts.load(Ordering::Relaxed),
             rss_kib,
             peak_rss_kib,
             warm_rss_kib: self.warm_rss_kib.load(Ordering::Relaxed),
@@ -345,6 +363,13 @@ impl StatsSnapshot {
             ("source_errors_total", self.source_errors, "Source read errors."),
             ("source_reopens_total", self.source_reopens, "Successful source reopens."),
             ("stream_lines_dropped_total", self.stream_lines_dropped, "Lines not delivered to slow stream clients."),
+            (
+                "http_slow_clients_dropped_total",
+                self.http_slow_clients_dropped,
+                "Stream clients disconnected because a write to them timed out.",
+            ),
+            ("http_rejected_total", self.http_rejected, "HTTP connections refused because the slots were taken."),
+            ("http_request_timeouts_total", self.http_request_timeouts, "HTTP clients that sent no request in time."),
         ] {
             metric(name, help, "counter", vec![(String::new(), v as f64)]);
         }

@@ -340,7 +340,7 @@ fn http_get(addr: std::net::SocketAddr, path: &str) -> (String, String) {
 fn http_health_metrics_latest_and_stream() {
     let stats = Arc::new(PipelineStats::new());
     let hub = Arc::new(StreamHub::new(Arc::clone(&stats)));
-    let server = HttpServer::start("127.0.0.1:0", Arc::clone(&stats), Arc::clone(&hub)).unwrap();
+    let server = HttpServer::start("127.0.0.1:0", false, Arc::clone(&stats), Arc::clone(&hub)).unwrap();
     let addr = server.local_addr();
     assert!(addr.ip().is_loopback());
     assert!(http_get(addr, "/latest").0.starts_with("HTTP/1.1 204"));

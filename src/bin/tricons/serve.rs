@@ -56,9 +56,14 @@ pub struct Args {
     #[arg(long, value_name = "PATH")]
     #[serde(default)]
     out: Vec<PathBuf>,
-    /// HTTP endpoint (/health /metrics /latest /stream); 0.0.0.0:PORT serves the network [default: 127.0.0.1:7878].
+    /// HTTP endpoint (/health /metrics /latest /stream) [default: 127.0.0.1:7878]; an address
+    /// other than loopback (e.g. 0.0.0.0:PORT) also needs --listen-any.
     #[arg(long, value_name = "ADDR")]
     listen: Option<String>,
+    /// Allow --listen on an address reachable from other machines (logged at WARN).
+    #[arg(long)]
+    #[serde(default)]
+    listen_any: bool,
     /// No HTTP endpoint.
     #[arg(long)]
     #[serde(default)]
@@ -103,6 +108,7 @@ impl Args {
             seed: self.seed.or(file.seed),
             out: if self.out.is_empty() { file.out } else { self.out },
             listen: self.listen.or(file.listen),
+            listen_any: self.listen_any || file.listen_any,
             no_listen: self.no_listen || file.no_listen,
             queue: self.queue.or(file.queue),
             frames: self.frames.or(file.frames),
@@ -154,8 +160,8 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         let hub = Arc::new(StreamHub::new(Arc::clone(&stats)));
         let addr = args.listen.as_deref().unwrap_or(DEFAULT_LISTEN);
-        let server = HttpServer::start(addr, Arc::clone(&stats), Arc::clone(&hub))
-            .with_context(|| "starting the HTTP endpoint (--listen; --no-listen for none)")?;
+        let server = HttpServer::start(addr, args.listen_any, Arc::clone(&stats), Arc::clone(&hub))
+            .with_context(|| "starting the HTTP endpoint (--listen, --listen-any; --no-listen for none)")?;
         log::info!("http: listening on http://{} (/health /metrics /latest /stream)", server.local_addr());
         sinks.push(Box::new(HubSink(hub)));
         Some(server)
