@@ -6,7 +6,7 @@ use tricons::frame::DEPTH_SCALE_MM;
 use tricons::geometry::{Vec3, rotation_axis_angle};
 use tricons::image_io::{encode_png, write_color_png, write_depth_png, write_label_png};
 use tricons::recording::{
-    FrameAnnotations, GtInstance, Manifest, Recording, RecordingWriter, TriconsRecording, open_recording,
+    FrameAnnotations, GtInstance, Manifest, Recording, RecordingWriter, TriconsRecording, WriteMode, open_recording,
 };
 use tricons::{Category, ColorImage, DepthImage, Error, Intrinsics, LabelImage, NocsMap, Pose, RgbdFrame};
 
@@ -44,7 +44,8 @@ fn annotations() -> FrameAnnotations {
 }
 
 fn write_recording(dir: &Path, n: u16) {
-    let mut w = RecordingWriter::create(dir, Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), false).unwrap();
+    let mut w =
+        RecordingWriter::create(dir, Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), WriteMode::New).unwrap();
     for i in 0..n {
         let ann = (i % 2 == 0).then(annotations);
         w.write_frame(&format!("{i:06}"), &frame(i + 1), ann.as_ref()).unwrap();
@@ -76,15 +77,16 @@ fn writer_refuses_to_clobber_a_recording() {
     let dir = tempfile::tempdir().unwrap();
     write_recording(dir.path(), 1);
     let m = Manifest::new(small_intrinsics(), DEPTH_SCALE_MM);
-    let err = RecordingWriter::create(dir.path(), m.clone(), false).err().unwrap();
-    assert!(err_text(err).contains("manifest.json"));
-    assert!(RecordingWriter::create(dir.path(), m, true).is_ok());
+    let err = RecordingWriter::create(dir.path(), m.clone(), WriteMode::New).err().unwrap();
+    assert!(err_text(err).contains("not empty"));
+    assert!(RecordingWriter::create(dir.path(), m, WriteMode::Overwrite).is_ok());
 }
 
 #[test]
 fn a_killed_writer_leaves_only_complete_frames_listed() {
     let dir = tempfile::tempdir().unwrap();
-    let mut w = RecordingWriter::create(dir.path(), Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), false).unwrap();
+    let mut w =
+        RecordingWriter::create(dir.path(), Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), WriteMode::New).unwrap();
     w.write_frame("000000", &frame(1), None).unwrap();
     w.flush().unwrap();
     // Simulate a kill mid-frame: a temporary file exists, the frame is not listed.
@@ -93,6 +95,77 @@ fn a_killed_writer_leaves_only_complete_frames_listed() {
     let rec = TriconsRecording::open(dir.path()).unwrap();
     assert_eq!(rec.len(), 1);
     assert_eq!(rec.read_frame(0).unwrap(), frame(1));
+}
+
+/// A non-empty directory is refused for a new recording; appending keeps every frame and
+/// file already there, continues the numbering after what is on disk, refuses another
+/// camera, and never writes a listed frame again.
+#[test]
+fn new_recordings_need_an_empty_directory_and_append_never_overwrites() {
+    let dir = tempfile::tempdir().unwrap();
+    fs::write(dir.path().join("notes.txt"), b"mine").unwrap();
+    let err = err_text(
+        RecordingWriter::create(dir.path(), Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), WriteMode::New)
+            .err()
+            .unwrap(),
+    );
+    assert!(err.contains("not empty") && err.contains("notes.txt"), "{err}");
+    assert!(
+        RecordingWriter::create(dir.path(), Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), WriteMode::Append)
+            .is_err()
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 2);
+    let before = fs::read(dir.path().join("000001_color.png")).unwrap();
+    // an unlisted frame's files (a writer killed before its manifest flush) count as taken
+    fs::write(dir.path().join("000005_color.png"), b"orphan").unwrap();
+    let mut w =
+        RecordingWriter::create(dir.path(), Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), WriteMode::Append)
+            .unwrap();
+    assert_eq!((w.len(), w.next_numeric_id().unwrap()), (2, 6));
+    let err = err_text(w.write_frame("000001", &frame(9), None).unwrap_err());
+    assert!(err.contains("already in the recording"), "{err}");
+    w.write_frame("000006", &frame(7), None).unwrap();
+    w.finish().unwrap();
+    let rec = TriconsRecording::open(dir.path()).unwrap();
+    assert_eq!(rec.len(), 3);
+    assert_eq!(rec.read_frame(1).unwrap(), frame(2));
+    assert_eq!(rec.read_frame(2).unwrap(), frame(7));
+    assert_eq!(fs::read(dir.path().join("000001_color.png")).unwrap(), before);
+    assert_eq!(fs::read(dir.path().join("000005_color.png")).unwrap(), b"orphan");
+
+    let mut other = small_intrinsics();
+    other.fx += 1.0;
+    let err = err_text(
+        RecordingWriter::create(dir.path(), Manifest::new(other, DEPTH_SCALE_MM), WriteMode::Append).err().unwrap(),
+    );
+    assert!(err.contains("another camera"), "{err}");
+}
+
+/// Temporary files of a killed writer (`*.tmp<pid>` of a process that is gone) are removed
+/// when the next writer opens the directory; a live process's are kept.
+#[test]
+fn a_killed_writers_temporaries_are_cleaned_at_the_next_open() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 1);
+    // pid 2^22 + 1 is above Linux's pid_max limit: never a live process
+    for name in ["000001_color.png.tmp4194305", "manifest.json.tmp4194305"] {
+        fs::write(dir.path().join(name), b"half").unwrap();
+    }
+    let mine = format!("000002_color.png.tmp{}", std::process::id());
+    fs::write(dir.path().join(&mine), b"in progress").unwrap();
+    let w = RecordingWriter::create(dir.path(), Manifest::new(small_intrinsics(), DEPTH_SCALE_MM), WriteMode::Append)
+        .unwrap();
+    drop(w);
+    let mut left: Vec<String> = fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.contains(".tmp"))
+        .collect();
+    left.sort();
+    assert_eq!(left, vec![mine]);
+    assert_eq!(TriconsRecording::open(dir.path()).unwrap().len(), 1);
 }
 
 #[test]

@@ -19,7 +19,7 @@ pub use annotations::{FrameAnnotations, GtInstance};
 pub use manifest::{FrameEntry, Manifest, RECORDING_FORMAT, RECORDING_FORMAT_VERSION};
 pub use nocs_layout::NocsLayout;
 pub use reader::TriconsRecording;
-pub use writer::{RecordingWriter, write_frame_files};
+pub use writer::{RecordingWriter, WriteMode, write_frame_files};
 
 use crate::error::{Error, Result};
 use crate::frame::{Intrinsics, RgbdFrame};

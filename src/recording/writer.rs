@@ -62,27 +62,91 @@ pub struct RecordingWriter {
     last_flush: Instant,
 }
 
+/// How [`RecordingWriter::create`] treats what is already in the directory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WriteMode {
+    /// A new recording: the directory is missing or empty (besides stale temporaries).
+    New,
+    /// Replace the recording already there (its manifest is rewritten; `synth --overwrite`).
+    Overwrite,
+    /// Add frames to the recording already there; its camera must be the same, and a
+    /// frame id it has (or a file of one) is never written again.
+    Append,
+}
+
 impl RecordingWriter {
-    /// Creates directory `root` (if needed) for a new recording described by
-    /// `manifest` (its frame list is ignored). Refuses to overwrite an existing
-    /// recording unless `overwrite` is set.
-    pub fn create(root: &Path, mut manifest: Manifest, overwrite: bool) -> Result<RecordingWriter> {
+    /// Creates directory `root` (if needed) for a recording described by `manifest` (its
+    /// frame list is ignored; with [`WriteMode::Append`] the existing list is kept).
+    /// Temporary files left by a killed writer are removed first.
+    pub fn create(root: &Path, mut manifest: Manifest, mode: WriteMode) -> Result<RecordingWriter> {
         manifest.frames.clear();
         manifest.validate().map_err(Error::InvalidArgument)?;
         std::fs::create_dir_all(root).map_err(|e| Error::io(root, e))?;
+        let stale = crate::atomic::remove_stale_temporaries(root)?;
+        if stale > 0 {
+            log::warn!("{}: removed {stale} temporary files of a writer that was killed", root.display());
+        }
         let manifest_path = root.join(MANIFEST_FILE);
-        if manifest_path.exists() && !overwrite {
-            return Err(Error::io(
-                &manifest_path,
-                std::io::Error::new(
-                    std::io::ErrorKind::AlreadyExists,
-                    "a recording already exists here (choose another directory or allow overwriting)",
-                ),
-            ));
+        let exists = |why: &str| {
+            Error::io(&manifest_path, std::io::Error::new(std::io::ErrorKind::AlreadyExists, why.to_string()))
+        };
+        match mode {
+            WriteMode::New => {
+                let mut entries = std::fs::read_dir(root).map_err(|e| Error::io(root, e))?;
+                if let Some(first) = entries.next() {
+                    let first = first.map_err(|e| Error::io(root, e))?.file_name();
+                    return Err(Error::io(
+                        root,
+                        std::io::Error::new(
+                            std::io::ErrorKind::AlreadyExists,
+                            format!(
+                                "the directory is not empty (it has {:?}): choose another one, or append to the \
+                                 recording in it",
+                                first
+                            ),
+                        ),
+                    ));
+                }
+            }
+            WriteMode::Overwrite => {}
+            WriteMode::Append => {
+                if !manifest_path.exists() {
+                    return Err(Error::io(
+                        &manifest_path,
+                        std::io::Error::new(std::io::ErrorKind::NotFound, "no recording to append to"),
+                    ));
+                }
+                let old = super::reader::TriconsRecording::open(root)?.manifest().clone();
+                if old.intrinsics != manifest.intrinsics
+                    || old.depth_scale_m != manifest.depth_scale_m
+                    || old.depth_intrinsics != manifest.depth_intrinsics
+                    || old.color_from_depth != manifest.color_from_depth
+                {
+                    return Err(exists(
+                        "the recording here was made with another camera (intrinsics, depth scale or registration differ)",
+                    ));
+                }
+                manifest.frames = old.frames;
+            }
         }
         let writer = RecordingWriter { root: root.to_path_buf(), manifest, last_flush: Instant::now() };
         writer.flush()?;
         Ok(writer)
+    }
+
+    /// The first numeric frame id free in this recording: after every numeric id of the
+    /// manifest and of the colour files in the directory (a killed writer may have left
+    /// a frame's files without listing it).
+    pub fn next_numeric_id(&self) -> Result<u64> {
+        let stem = |name: &str| name.split('_').next().and_then(|n| n.parse::<u64>().ok());
+        let mut next = self.manifest.frames.iter().filter_map(|f| stem(&f.id)).map(|n| n + 1).max().unwrap_or(0);
+        for entry in std::fs::read_dir(&self.root).map_err(|e| Error::io(&self.root, e))? {
+            let name = entry.map_err(|e| Error::io(&self.root, e))?.file_name();
+            if let Some(n) = name.to_str().filter(|n| n.ends_with("_color.png")).and_then(stem) {
+                next = next.max(n + 1);
+            }
+        }
+        Ok(next)
     }
 
     /// The recording directory.
@@ -110,6 +174,9 @@ impl RecordingWriter {
                 "frame {id}: images are {}x{} / {}x{}, the recording is {}x{}",
                 frame.color.width, frame.color.height, frame.depth.width, frame.depth.height, k.width, k.height
             )));
+        }
+        if self.manifest.frames.iter().any(|f| f.id == id) {
+            return Err(Error::InvalidArgument(format!("frame id {id:?} is already in the recording")));
         }
         let entry = write_frame_files(&self.root, id, frame, annotations)?;
         self.push_entry(entry)

@@ -22,7 +22,7 @@ use crate::frame::{DEPTH_SCALE_MM, Intrinsics, LabelImage, NOCS_MAP_MAX, NocsMap
 use crate::geometry::Pose;
 use crate::recording::annotations::{FrameAnnotations, GtInstance};
 use crate::recording::manifest::Manifest;
-use crate::recording::writer::{RecordingWriter, write_frame_files};
+use crate::recording::writer::{RecordingWriter, WriteMode, write_frame_files};
 use crate::rng::Rng;
 use raster::NO_ITEM;
 use rayon::prelude::*;
@@ -235,7 +235,8 @@ pub fn generate(
     cfg.validate().map_err(Error::InvalidArgument)?;
     let mut manifest = Manifest::new(cfg.intrinsics, DEPTH_SCALE_MM);
     manifest.source = Some(format!("synthnocs seed={seed} frames={frames} generator=v{GENERATOR_VERSION}"));
-    let mut writer = RecordingWriter::create(out_dir, manifest, overwrite)?;
+    let mode = if overwrite { WriteMode::Overwrite } else { WriteMode::New };
+    let mut writer = RecordingWriter::create(out_dir, manifest, mode)?;
     let chunk = (rayon::current_num_threads() * 4).max(8);
     let mut done = 0;
     while done < frames {

@@ -165,10 +165,51 @@ fn record_stops_on_sigint_with_every_completed_frame_on_disk() {
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
 
-    // Recording again into it is refused and keeps the recording.
+    // Recording again into it is refused and keeps the recording; --append adds to it.
     let again = tricons(&["record", "--recording", &repo("tests/data/synthnocs-demo"), "--out", out.to_str().unwrap()]);
-    assert_clean_failure(&again, "already exists");
+    assert_clean_failure(&again, "not empty");
     assert_eq!(open_recording(&out).unwrap().len(), rec.len());
+    let more = tricons(&[
+        "record",
+        "--recording",
+        &repo("tests/data/synthnocs-demo"),
+        "--rate",
+        "max",
+        "--frames",
+        "2",
+        "--append",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(more.status.success(), "{}", String::from_utf8_lossy(&more.stderr));
+    let appended = open_recording(&out).unwrap();
+    assert_eq!(appended.len(), rec.len() + 2);
+    assert_eq!(appended.read_frame(rec.len()).unwrap().color, demo.read_frame(0).unwrap().color);
+    assert_eq!(appended.read_frame(0).unwrap().color, rec.read_frame(0).unwrap().color);
+}
+
+/// Converting a recording with an unreadable frame: an error (exit non-zero) that keeps
+/// the frames before it, unless --skip-bad-frames, which counts the frame and goes on.
+#[test]
+fn record_fails_on_a_lost_frame_unless_told_to_skip_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = demo_subset(dir.path(), 4, false);
+    std::fs::write(src.join("000003_color.png"), b"not a png").unwrap(); // the third frame (ids 0, 2, 3, 5)
+    let run = |out: &str, extra: &[&str]| {
+        let out = dir.path().join(out);
+        let mut args = vec!["record", "--recording", src.to_str().unwrap(), "--rate", "max", "--out"];
+        args.push(out.to_str().unwrap());
+        args.extend_from_slice(extra);
+        (tricons(&args), out)
+    };
+    let (o, out) = run("strict", &[]);
+    assert_clean_failure(&o, "000003_color.png");
+    assert_clean_failure(&o, "--skip-bad-frames");
+    assert_eq!(open_recording(&out).unwrap().len(), 2, "the frames before the bad one are kept");
+    let (o, out) = run("lenient", &["--skip-bad-frames"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("1 frames lost"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(open_recording(&out).unwrap().len(), 3);
 }
 
 #[test]
