@@ -3,8 +3,14 @@
 # and qemu-user run the release build and the full Rust test suite for
 # aarch64-unknown-linux-gnu and armv7-unknown-linux-gnueabihf.
 #
-# Usage: cross/check.sh [--tests-only] [aarch64] [armv7]   (default: both targets)
+# Usage: cross/check.sh [--tests-only] [--all-tests] [aarch64] [armv7]   (default: both targets)
 #   --tests-only   skip the release build and the cold-start run
+#   --all-tests    also run the suites that drive the binary as a separate process
+#                  (cli_tests, service_tests: signals, files, sockets, the process's
+#                  exit status; the same on every ISA, and under qemu they take most of
+#                  the run) and the doc examples. Without it, every other suite runs: the library's unit tests,
+#                  the kernels, int8, the pose and Mask R-CNN graphs against their
+#                  golden fixtures, metrics, recordings, capture decoders, synth.
 #
 # Installs what is missing (apt packages as root, rustup targets for the
 # toolchain pinned in rust-toolchain.toml). Prints binary sizes and an
@@ -13,11 +19,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 tests_only=""
+all_tests=""
 wanted=()
 for arg in "$@"; do
     case "$arg" in
         --tests-only) tests_only=1 ;;
-        -h | --help) sed -n '2,12p' "$0"; exit 0 ;;
+        --all-tests) all_tests=1 ;;
+        -h | --help) sed -n '2,19p' "$0"; exit 0 ;;
         *) wanted+=("$arg") ;;
     esac
 done
@@ -73,6 +81,16 @@ for arch in "${wanted[@]}"; do
         rm -rf "$tmp"
     fi
 
-    echo "== $triple: test suite under ${QEMU[$arch]}"
-    cargo test --locked --target "$triple"
+    if [ -n "$all_tests" ]; then
+        echo "== $triple: test suite under ${QEMU[$arch]}"
+        cargo test --locked --target "$triple"
+    else
+        suites=()
+        for f in tests/*.rs; do
+            name=$(basename "$f" .rs)
+            case "$name" in cli_tests | service_tests) ;; *) suites+=(--test "$name") ;; esac
+        done
+        echo "== $triple: test suite under ${QEMU[$arch]} (library and $((${#suites[@]} / 2)) integration suites; --all-tests adds the process-level ones and the doc tests)"
+        cargo test --locked --target "$triple" --lib "${suites[@]}"
+    fi
 done

@@ -240,6 +240,25 @@ fn png_size_bombs_are_refused_before_decoding() {
     }
 }
 
+/// An annotations file may only name images inside the recording (it once opened /etc/passwd).
+#[test]
+fn annotation_images_outside_the_recording_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(dir.path(), 1);
+    let gt = dir.path().join("000000_gt.json");
+    let text = fs::read_to_string(&gt).unwrap();
+    for (field, bad) in [("mask", "/etc/passwd"), ("mask", "../000000_mask.png"), ("nocs", "sub/../../x.png")] {
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v[field] = serde_json::Value::from(bad);
+        fs::write(&gt, serde_json::to_string(&v).unwrap()).unwrap();
+        let err = err_text(open_recording(dir.path()).unwrap().read_annotations(0).unwrap_err());
+        assert!(
+            err.contains("000000_gt.json") && err.contains(&format!("field {field}")) && err.contains(bad),
+            "{err}"
+        );
+    }
+}
+
 #[test]
 fn malformed_manifest_and_annotations_name_file_and_field() {
     let dir = tempfile::tempdir().unwrap();

@@ -104,7 +104,7 @@ impl Manifest {
                 return Err(format!("frames[{i}].id: duplicate id {:?}", f.id));
             }
             for name in [Some(&f.color), Some(&f.depth), f.annotations.as_ref()].into_iter().flatten() {
-                if Path::new(name).is_absolute() || name.contains("..") {
+                if !inside_recording(name) {
                     return Err(format!("frames[{i}]: file {name:?} must be relative to the recording"));
                 }
             }
@@ -118,4 +118,11 @@ impl Manifest {
         s.push('\n');
         s
     }
+}
+
+/// Whether `name` is a path inside the recording: relative, with no `..` (nor a root or
+/// drive prefix) among its components.
+pub fn inside_recording(name: &str) -> bool {
+    use std::path::Component;
+    !name.is_empty() && Path::new(name).components().all(|c| matches!(c, Component::Normal(_) | Component::CurDir))
 }

@@ -53,6 +53,15 @@ impl TriconsRecording {
         for (k, inst) in file.instances.iter().enumerate() {
             inst.validate().map_err(|m| Error::parse(&path, None, format!("instances[{k}]: {m}")))?;
         }
+        for (field, name) in [("mask", &file.mask), ("nocs", &file.nocs)] {
+            if let Some(name) = name.as_deref().filter(|n| !super::manifest::inside_recording(n)) {
+                return Err(Error::parse(
+                    &path,
+                    None,
+                    format!("field {field}: {name:?} must be a file inside the recording"),
+                ));
+            }
+        }
         Ok(Some(file))
     }
 
