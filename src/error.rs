@@ -112,5 +112,26 @@ impl Error {
     }
 }
 
+/// A JSON file's error message naming the field it is in (`field frames[2].height:
+/// invalid value ...`; the whole document: no prefix).
+fn field_message<E: std::fmt::Display>(e: &serde_path_to_error::Error<E>) -> String {
+    let field = e.path().to_string();
+    if field == "." { e.inner().to_string() } else { format!("field {field}: {}", e.inner()) }
+}
+
+/// Parses JSON `text` of `path` into `T`; a type error names its field and line.
+pub fn from_json_str<T: serde::de::DeserializeOwned>(path: &std::path::Path, text: &str) -> Result<T> {
+    let mut de = serde_json::Deserializer::from_str(text);
+    let value = serde_path_to_error::deserialize(&mut de)
+        .map_err(|e| Error::parse(path, Some(e.inner().line()).filter(|&l| l > 0), field_message(&e)))?;
+    de.end().map_err(|e| Error::parse(path, Some(e.line()), e.to_string()))?;
+    Ok(value)
+}
+
+/// Converts a parsed JSON document of `path` into `T`; a type error names its field.
+pub fn from_json_value<T: serde::de::DeserializeOwned>(path: &std::path::Path, value: serde_json::Value) -> Result<T> {
+    serde_path_to_error::deserialize(value).map_err(|e| Error::parse(path, None, field_message(&e)))
+}
+
 /// Result with the library's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;

@@ -277,7 +277,16 @@ fn malformed_manifest_and_annotations_name_file_and_field() {
     assert!(err_text(open_recording(dir.path()).err().unwrap()).contains("depth_scale_m"));
 
     fs::write(&manifest, good.replace("\"fx\": 30.0", "\"fx\": \"wide\"")).unwrap();
-    assert!(err_text(open_recording(dir.path()).err().unwrap()).contains("manifest.json"));
+    let err = err_text(open_recording(dir.path()).err().unwrap());
+    assert!(err.contains("manifest.json") && err.contains("field intrinsics.fx"), "{err}");
+
+    // serde's type errors name the field too
+    fs::write(&manifest, good.replace("\"version\": 1", "\"version\": \"1\"")).unwrap();
+    let err = err_text(open_recording(dir.path()).err().unwrap());
+    assert!(err.contains("field version") && err.contains("expected u32"), "{err}");
+    fs::write(&manifest, good.replace("\"height\": 24", "\"height\": -24")).unwrap();
+    let err = err_text(open_recording(dir.path()).err().unwrap());
+    assert!(err.contains("field intrinsics.height") && err.contains("-24"), "{err}");
 
     fs::write(&manifest, &good).unwrap();
     let gt = dir.path().join("000000_gt.json");

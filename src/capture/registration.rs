@@ -65,8 +65,7 @@ impl CameraConfig {
                 format!("field version: {found} is not supported (this build reads {CAMERA_CONFIG_VERSION})"),
             ));
         }
-        let config: CameraConfig =
-            serde_json::from_value(value).map_err(|e| Error::parse(path, None, e.to_string()))?;
+        let config: CameraConfig = crate::error::from_json_value(path, value)?;
         config.validate().map_err(|m| Error::parse(path, None, m))?;
         Ok(config)
     }

@@ -97,8 +97,10 @@ pub fn read_predictions(path: &Path) -> Result<Vec<FramePredictions>> {
         if let Some(blank) = blank_line {
             return Err(Error::parse(path, Some(blank), "blank line between frames (one JSON object per line)"));
         }
-        let frame: FramePredictions =
-            serde_json::from_str(&line).map_err(|e| Error::parse(path, Some(i + 1), e.to_string()))?;
+        let frame: FramePredictions = crate::error::from_json_str(path, &line).map_err(|e| match e {
+            Error::Parse { message, .. } => Error::parse(path, Some(i + 1), message),
+            other => other,
+        })?;
         for (k, inst) in frame.instances.iter().enumerate() {
             inst.validate().map_err(|m| Error::parse(path, Some(i + 1), format!("instances[{k}]: {m}")))?;
         }

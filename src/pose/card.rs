@@ -80,8 +80,7 @@ impl ModelCard {
     /// Read and check a card file (format, version, I/O names, constants).
     pub fn read(path: &Path) -> Result<ModelCard> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let card: ModelCard =
-            serde_json::from_str(&text).map_err(|e| Error::parse(path, Some(e.line()), e.to_string()))?;
+        let card: ModelCard = crate::error::from_json_str(path, &text)?;
         let bad = |m: String| Err(Error::parse(path, None, m));
         if card.format != CARD_FORMAT {
             return bad(format!("field `format`: expected {CARD_FORMAT:?}, found {:?}", card.format));

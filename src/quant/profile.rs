@@ -107,7 +107,7 @@ impl QuantProfile {
     pub fn read(path: &Path) -> Result<QuantProfile> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let parse = |message: String| Error::Parse { path: path.to_path_buf(), line: None, message };
-        let p: QuantProfile = serde_json::from_str(&text).map_err(|e| parse(e.to_string()))?;
+        let p: QuantProfile = crate::error::from_json_str(path, &text)?;
         if p.format != PROFILE_FORMAT {
             return Err(parse(format!("field format is {:?}, expected {PROFILE_FORMAT:?}", p.format)));
         }

@@ -84,7 +84,7 @@ impl Manifest {
                 supported: RECORDING_FORMAT_VERSION,
             });
         }
-        let manifest: Manifest = serde_json::from_value(value).map_err(|e| Error::parse(path, None, e.to_string()))?;
+        let manifest: Manifest = crate::error::from_json_value(path, value)?;
         manifest.validate().map_err(|m| Error::parse(path, None, m))?;
         Ok(manifest)
     }

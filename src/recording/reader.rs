@@ -48,8 +48,7 @@ impl TriconsRecording {
         };
         let path = self.root.join(name);
         let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-        let file: AnnotationsFile =
-            serde_json::from_str(&text).map_err(|e| Error::parse(&path, None, e.to_string()))?;
+        let file: AnnotationsFile = crate::error::from_json_str(&path, &text)?;
         for (k, inst) in file.instances.iter().enumerate() {
             inst.validate().map_err(|m| Error::parse(&path, None, format!("instances[{k}]: {m}")))?;
         }

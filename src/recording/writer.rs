@@ -95,26 +95,21 @@ impl RecordingWriter {
                 let mut entries = std::fs::read_dir(root).map_err(|e| Error::io(root, e))?;
                 if let Some(first) = entries.next() {
                     let first = first.map_err(|e| Error::io(root, e))?.file_name();
-                    return Err(Error::io(
-                        root,
-                        std::io::Error::new(
-                            std::io::ErrorKind::AlreadyExists,
-                            format!(
-                                "the directory is not empty (it has {:?}): choose another one, or append to the \
-                                 recording in it",
-                                first
-                            ),
-                        ),
-                    ));
+                    return Err(Error::InvalidArgument(format!(
+                        "{}: the directory is not empty (it has {:?}): choose another one, or replace or append \
+                         to the recording in it",
+                        root.display(),
+                        first
+                    )));
                 }
             }
             WriteMode::Overwrite => {}
             WriteMode::Append => {
                 if !manifest_path.exists() {
-                    return Err(Error::io(
-                        &manifest_path,
-                        std::io::Error::new(std::io::ErrorKind::NotFound, "no recording to append to"),
-                    ));
+                    return Err(Error::InvalidArgument(format!(
+                        "{}: no recording to append to",
+                        manifest_path.display()
+                    )));
                 }
                 let old = super::reader::TriconsRecording::open(root)?.manifest().clone();
                 if old.intrinsics != manifest.intrinsics

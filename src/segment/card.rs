@@ -158,7 +158,7 @@ impl SegmenterCard {
         if format != SEGMENTER_CARD_FORMAT {
             return bad(format!("field `format`: expected {SEGMENTER_CARD_FORMAT:?}, found {format:?}"));
         }
-        let card: SegmenterCard = serde_json::from_value(value).map_err(|e| Error::parse(path, None, e.to_string()))?;
+        let card: SegmenterCard = crate::error::from_json_value(path, value)?;
         if card.version != SEGMENTER_CARD_VERSION {
             return bad(format!(
                 "field `version`: this build reads version {SEGMENTER_CARD_VERSION}, found {}",

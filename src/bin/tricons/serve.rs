@@ -97,8 +97,7 @@ impl Args {
             return Ok(self);
         };
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let file: Args =
-            serde_json::from_str(&text).with_context(|| format!("{}: not a serve config", path.display()))?;
+        let file: Args = tricons::error::from_json_str(path, &text).context("not a serve config")?;
         Ok(Args {
             config: self.config,
             source: self.source.or(file.source),
