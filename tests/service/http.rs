@@ -35,6 +35,24 @@ fn status_of(addr: SocketAddr, path: &str) -> String {
     text.lines().next().unwrap_or("").to_string()
 }
 
+/// A `/stream` client that has its 200 head (so it is subscribed) and will read no more.
+fn stuck_stream_client(addr: SocketAddr) -> TcpStream {
+    let mut stuck = TcpStream::connect(addr).unwrap();
+    write!(stuck, "GET /stream HTTP/1.1\r\n\r\n").unwrap();
+    let mut head = [0u8; 15];
+    stuck.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    stuck.read_exact(&mut head).unwrap();
+    assert_eq!(&head, b"HTTP/1.1 200 OK");
+    stuck
+}
+
+/// Shuts the server down and checks it took about WRITE_TIMEOUT at most.
+fn shutdown_within_bound(server: HttpServer) {
+    let started = Instant::now();
+    server.shutdown();
+    assert!(started.elapsed() < WRITE_TIMEOUT * 2, "shutdown took {:?}", started.elapsed());
+}
+
 /// Polls `cond` every 20 ms for at most `limit`.
 fn wait_for(limit: Duration, mut cond: impl FnMut() -> bool) -> bool {
     let end = Instant::now() + limit;
@@ -53,13 +71,7 @@ fn wait_for(limit: Duration, mut cond: impl FnMut() -> bool) -> bool {
 fn a_stream_client_that_stops_reading_is_dropped_and_does_not_block_shutdown() {
     let (server, stats, hub) = server();
     let addr = server.local_addr();
-    let mut stuck = TcpStream::connect(addr).unwrap();
-    write!(stuck, "GET /stream HTTP/1.1\r\n\r\n").unwrap();
-    // its 200 head arrives once it is subscribed
-    let mut head = [0u8; 15];
-    stuck.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    stuck.read_exact(&mut head).unwrap();
-    assert_eq!(&head, b"HTTP/1.1 200 OK");
+    let stuck = stuck_stream_client(addr);
     // 256 KiB lines until the socket buffers are full and a write times out (bounded: 400 lines, 100 MiB)
     let line = "x".repeat(256 * 1024);
     let mut sink = HubSink(Arc::clone(&hub));
@@ -74,9 +86,7 @@ fn a_stream_client_that_stops_reading_is_dropped_and_does_not_block_shutdown() {
     }
     assert!(wait_for(WRITE_TIMEOUT * 3, || dropped(&stats) == 1), "the stuck client was not dropped");
     assert!(status_of(addr, "/metrics").contains("200"));
-    let started = Instant::now();
-    server.shutdown();
-    assert!(started.elapsed() < WRITE_TIMEOUT * 2, "shutdown took {:?}", started.elapsed());
+    shutdown_within_bound(server);
     drop(stuck);
 }
 
@@ -86,20 +96,14 @@ fn a_stream_client_that_stops_reading_is_dropped_and_does_not_block_shutdown() {
 fn shutdown_is_bounded_while_a_stream_write_is_blocked() {
     let (server, _stats, hub) = server();
     let addr = server.local_addr();
-    let mut stuck = TcpStream::connect(addr).unwrap();
-    write!(stuck, "GET /stream HTTP/1.1\r\n\r\n").unwrap();
-    let mut head = [0u8; 15];
-    stuck.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    stuck.read_exact(&mut head).unwrap();
+    let stuck = stuck_stream_client(addr);
     let line = "y".repeat(1024 * 1024);
     let mut sink = HubSink(Arc::clone(&hub));
     for _ in 0..40 {
         sink.publish(&FramePredictions::default(), &line).unwrap();
     }
     std::thread::sleep(Duration::from_millis(100));
-    let started = Instant::now();
-    server.shutdown();
-    assert!(started.elapsed() < WRITE_TIMEOUT * 2, "shutdown took {:?}", started.elapsed());
+    shutdown_within_bound(server);
     drop(stuck);
 }
 
