@@ -245,6 +245,8 @@ fn segment_writes_records_label_images_and_overlays() {
         "--out",
         out.to_str().unwrap(),
         "--overlays",
+        "--json",
+        dir.path().join("eval.json").to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = fs::read_to_string(out.join("segments.jsonl")).unwrap();
@@ -268,6 +270,64 @@ fn segment_writes_records_label_images_and_overlays() {
             }
         }
         assert!(out.join(format!("{}_segments.png", r.frame)).is_file());
+    }
+    // The shipped card suppresses duplicates across classes: the demo frames have some
+    // (one object under two labels); with --keep-duplicates they come back.
+    let all = dir.path().join("all");
+    let o = tricons(&[
+        "segment",
+        "--recording",
+        &repo("tests/data/synthnocs-demo"),
+        "--out",
+        all.to_str().unwrap(),
+        "--keep-duplicates",
+        "--json",
+        dir.path().join("eval-all.json").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let eval: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(dir.path().join("eval.json")).unwrap()).unwrap();
+    let eval_all: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(dir.path().join("eval-all.json")).unwrap()).unwrap();
+    let iou = eval["duplicate_mask_iou"].as_f64().expect("the shipped card sets duplicate_mask_iou");
+    assert!(eval_all["duplicate_mask_iou"].is_null());
+    let dropped = eval["duplicates_dropped"].as_u64().unwrap();
+    assert!(dropped > 0, "the demo frames hold duplicates: {eval}");
+    assert_eq!(eval["detections"].as_u64().unwrap() + dropped, eval_all["detections"].as_u64().unwrap());
+    assert_eq!(eval["objects"], eval_all["objects"]);
+    for name in ["bbox_AP50", "bbox_AP75", "mask_AP50", "mask_AP75"] {
+        let ap = eval["ap"][name].as_f64().unwrap();
+        assert!((0.0..=100.0).contains(&ap), "{name} {ap}");
+    }
+    let all_records: Vec<tricons::output::segments::SegRecord> = fs::read_to_string(all.join("segments.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let masks = |r: &tricons::output::segments::SegRecord| -> Vec<(f32, Vec<bool>)> {
+        r.instances
+            .iter()
+            .map(|i| (i.score, tricons::output::segments::rle_to_mask(&i.mask_rle, 640 * 480).unwrap()))
+            .collect()
+    };
+    let overlap = |a: &[bool], b: &[bool]| {
+        let inter = a.iter().zip(b).filter(|(x, y)| **x && **y).count() as f64;
+        let union = a.iter().zip(b).filter(|(x, y)| **x || **y).count() as f64;
+        inter / union.max(1.0)
+    };
+    for (kept, every) in records.iter().zip(&all_records) {
+        let (kept, every) = (masks(kept), masks(every));
+        // No two kept detections overlap above the threshold ...
+        for (i, a) in kept.iter().enumerate() {
+            for b in &kept[i + 1..] {
+                assert!(overlap(&a.1, &b.1) <= iou);
+            }
+        }
+        // ... each kept one is one of all, and each dropped one overlaps a better kept one.
+        for e in &every {
+            let is_kept = kept.iter().any(|k| k.0 == e.0 && k.1 == e.1);
+            assert!(is_kept || kept.iter().any(|k| k.0 >= e.0 && overlap(&k.1, &e.1) > iou));
+        }
     }
     // A corrupt PNG: a clean error naming it, nothing written for it.
     let bad = dir.path().join("bad.png");

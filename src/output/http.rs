@@ -49,7 +49,7 @@ pub const WRITE_TIMEOUT: Duration = Duration::from_secs(2);
 /// Write deadline while delivering a `/stream` client's last queued lines at shutdown.
 const DRAIN_TIMEOUT: Duration = Duration::from_millis(200);
 /// Largest request head read.
-const MAX_REQUEST_BYTES: usize = 8192;
+pub const MAX_REQUEST_BYTES: usize = 8192;
 /// How often a `/stream` connection checks for shutdown.
 const POLL: Duration = Duration::from_millis(50);
 
@@ -301,13 +301,66 @@ pub fn health_json(snapshot: &StatsSnapshot) -> String {
     s
 }
 
+/// What a request asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Route {
+    /// `/`: a line naming the routes.
+    Index,
+    /// `/health`.
+    Health,
+    /// `/metrics`.
+    Metrics,
+    /// `/latest`.
+    Latest,
+    /// `/stream`.
+    Stream,
+}
+
+/// Why a request head is refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BadRequest {
+    /// Longer than the largest head read (400).
+    TooLarge,
+    /// A method other than GET (405).
+    NotGet,
+    /// No such route (404).
+    NotFound,
+}
+
+/// Whether `head` holds a whole request head (it ends at an empty line).
+pub fn head_complete(head: &[u8]) -> bool {
+    head.windows(4).any(|w| w == b"\r\n\r\n") || head.windows(2).any(|w| w == b"\n\n")
+}
+
+/// The route a request head (its bytes as received, at most [`MAX_REQUEST_BYTES`] of
+/// them are accepted) asks for: the request line's method and path, query ignored.
+pub fn parse_request(head: &[u8]) -> std::result::Result<Route, BadRequest> {
+    if head.len() > MAX_REQUEST_BYTES {
+        return Err(BadRequest::TooLarge);
+    }
+    let text = String::from_utf8_lossy(head);
+    let mut parts = text.lines().next().unwrap_or("").split_whitespace();
+    let (method, target) = (parts.next().unwrap_or(""), parts.next().unwrap_or(""));
+    if method != "GET" {
+        return Err(BadRequest::NotGet);
+    }
+    match target.split('?').next().unwrap_or("") {
+        "/" => Ok(Route::Index),
+        "/health" => Ok(Route::Health),
+        "/metrics" => Ok(Route::Metrics),
+        "/latest" => Ok(Route::Latest),
+        "/stream" => Ok(Route::Stream),
+        _ => Err(BadRequest::NotFound),
+    }
+}
+
 /// Reads a request head within [`REQUEST_TIMEOUT`] in all (not per read: a client
 /// trickling one byte at a time is cut off too). `Ok(None)`: the deadline passed.
 fn read_head(stream: &mut TcpStream) -> std::io::Result<Option<Vec<u8>>> {
     let deadline = Instant::now() + REQUEST_TIMEOUT;
     let mut head = Vec::new();
     let mut buf = [0u8; 1024];
-    while !head.windows(4).any(|w| w == b"\r\n\r\n") && !head.windows(2).any(|w| w == b"\n\n") {
+    while !head_complete(&head) {
         let left = deadline.saturating_duration_since(Instant::now());
         if left.is_zero() {
             return Ok(None);
@@ -379,30 +432,28 @@ fn handle(
         stats.http_request_timeouts.fetch_add(1, Ordering::Relaxed);
         return respond(&mut stream, 408, "text/plain", b"request head not received in time\n");
     };
-    if head.len() > MAX_REQUEST_BYTES {
-        return respond(&mut stream, 400, "text/plain", b"request too large\n");
-    }
-    let text = String::from_utf8_lossy(&head);
-    let mut parts = text.lines().next().unwrap_or("").split_whitespace();
-    let (method, target) = (parts.next().unwrap_or(""), parts.next().unwrap_or(""));
-    let path = target.split('?').next().unwrap_or("");
-    if method != "GET" {
-        return respond(&mut stream, 405, "text/plain", b"only GET\n");
-    }
-    match path {
-        "/health" => {
+    let route = match parse_request(&head) {
+        Ok(route) => route,
+        Err(BadRequest::TooLarge) => return respond(&mut stream, 400, "text/plain", b"request too large\n"),
+        Err(BadRequest::NotGet) => return respond(&mut stream, 405, "text/plain", b"only GET\n"),
+        Err(BadRequest::NotFound) => {
+            return respond(&mut stream, 404, "text/plain", b"not found: try /health /metrics /latest /stream\n");
+        }
+    };
+    match route {
+        Route::Health => {
             let snap = stats.snapshot();
             let status = if snap.source == SourceState::Reconnecting { 503 } else { 200 };
             respond(&mut stream, status, "application/json", health_json(&snap).as_bytes())
         }
-        "/metrics" => {
+        Route::Metrics => {
             respond(&mut stream, 200, "text/plain; version=0.0.4", stats.snapshot().to_prometheus().as_bytes())
         }
-        "/latest" => match hub.latest() {
+        Route::Latest => match hub.latest() {
             Some(line) => respond(&mut stream, 200, "application/json", format!("{line}\n").as_bytes()),
             None => respond(&mut stream, 204, "application/json", b""),
         },
-        "/stream" => {
+        Route::Stream => {
             let Some(_slot) = take_slot(streams, MAX_STREAM_CLIENTS) else {
                 stats.http_rejected.fetch_add(1, Ordering::Relaxed);
                 return busy(&mut stream, "too many /stream clients");
@@ -427,7 +478,32 @@ fn handle(
                 }
             }
         }
-        "/" => respond(&mut stream, 200, "text/plain", b"tricons pose service: /health /metrics /latest /stream\n"),
-        _ => respond(&mut stream, 404, "text/plain", b"not found: try /health /metrics /latest /stream\n"),
+        Route::Index => {
+            respond(&mut stream, 200, "text/plain", b"tricons pose service: /health /metrics /latest /stream\n")
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn request_heads_route_or_are_refused() {
+        assert_eq!(parse_request(b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n"), Ok(Route::Health));
+        assert_eq!(parse_request(b"GET /metrics?x=1 HTTP/1.0\n\n"), Ok(Route::Metrics));
+        assert_eq!(parse_request(b"GET / HTTP/1.1\r\n\r\n"), Ok(Route::Index));
+        assert_eq!(parse_request(b"GET /stream"), Ok(Route::Stream));
+        assert_eq!(parse_request(b"GET  /latest  HTTP/1.1\r\n\r\n"), Ok(Route::Latest));
+        assert_eq!(parse_request(b"POST /health HTTP/1.1\r\n\r\n"), Err(BadRequest::NotGet));
+        assert_eq!(parse_request(b""), Err(BadRequest::NotGet));
+        assert_eq!(parse_request(b"\xff\xfe GET"), Err(BadRequest::NotGet));
+        assert_eq!(parse_request(b"GET /healthz HTTP/1.1\r\n\r\n"), Err(BadRequest::NotFound));
+        assert_eq!(parse_request(b"GET"), Err(BadRequest::NotFound));
+        let mut big = b"GET /health HTTP/1.1\r\n".to_vec();
+        big.resize(MAX_REQUEST_BYTES + 1, b'a');
+        assert_eq!(parse_request(&big), Err(BadRequest::TooLarge));
+        assert!(head_complete(b"GET / HTTP/1.1\r\n\r\n") && head_complete(b"GET /\n\n"));
+        assert!(!head_complete(b"GET / HTTP/1.1\r\n") && !head_complete(b""));
     }
 }

@@ -220,6 +220,9 @@ impl Pipeline {
                         match segment.segment(&frame) {
                             Ok(detections) => {
                                 stats.record(Stage::Segment, t.elapsed());
+                                stats
+                                    .duplicate_detections_dropped
+                                    .store(segment.duplicates_dropped(), Ordering::Relaxed);
                                 let work = Work { frame, detections, instances: Vec::new() };
                                 if output.push(work).is_err() {
                                     break;

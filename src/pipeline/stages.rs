@@ -30,6 +30,10 @@ pub struct Detection {
 pub trait Segment: Send {
     /// The frame's instances.
     fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>>;
+    /// Detections dropped as duplicates so far (0 for a stage that never drops any).
+    fn duplicates_dropped(&self) -> u64 {
+        0
+    }
 }
 
 /// The pose stage.
@@ -58,6 +62,9 @@ pub fn detections_from_segmenter(segmenter: &Segmenter, image: &ColorImage) -> R
 impl Segment for Segmenter {
     fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
         detections_from_segmenter(self, &frame.frame.color)
+    }
+    fn duplicates_dropped(&self) -> u64 {
+        Segmenter::duplicates_dropped(self)
     }
 }
 

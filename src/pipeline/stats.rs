@@ -117,6 +117,8 @@ pub struct StatsSnapshot {
     pub frames_dropped: u64,
     /// Frames that failed in a stage (logged, not published).
     pub frames_failed: u64,
+    /// Detections the segmenter dropped as duplicates of another (card's `duplicate_mask_iou`).
+    pub duplicate_detections_dropped: u64,
     /// Published frames per second since the start.
     pub fps: f64,
     /// Published frames per second over the last five seconds.
@@ -185,6 +187,8 @@ pub struct PipelineStats {
     pub frames_published: AtomicU64,
     /// Frames that failed in a stage.
     pub frames_failed: AtomicU64,
+    /// Detections the segmenter dropped as duplicates.
+    pub duplicate_detections_dropped: AtomicU64,
     /// Source read errors.
     pub source_errors: AtomicU64,
     /// Successful reopens.
@@ -218,6 +222,7 @@ impl PipelineStats {
             frames_captured: AtomicU64::new(0),
             frames_published: AtomicU64::new(0),
             frames_failed: AtomicU64::new(0),
+            duplicate_detections_dropped: AtomicU64::new(0),
             source_errors: AtomicU64::new(0),
             source_reopens: AtomicU64::new(0),
             stream_lines_dropped: AtomicU64::new(0),
@@ -317,6 +322,7 @@ impl PipelineStats {
             frames_published: published,
             frames_dropped: queues.iter().map(|q| q.dropped).sum(),
             frames_failed: self.frames_failed.load(Ordering::Relaxed),
+            duplicate_detections_dropped: self.duplicate_detections_dropped.load(Ordering::Relaxed),
             fps: if uptime_s > 0.0 { published as f64 / uptime_s } else { 0.0 },
             fps_recent: recent,
             source_errors: self.source_errors.load(Ordering::Relaxed),
@@ -360,6 +366,11 @@ impl StatsSnapshot {
             ("frames_published_total", self.frames_published, "Frames whose result was published."),
             ("frames_dropped_total", self.frames_dropped, "Frames dropped because inference fell behind."),
             ("frames_failed_total", self.frames_failed, "Frames that failed in a stage."),
+            (
+                "duplicate_detections_dropped_total",
+                self.duplicate_detections_dropped,
+                "Detections dropped as duplicates of a higher-scored one (mask IoU).",
+            ),
             ("source_errors_total", self.source_errors, "Source read errors."),
             ("source_reopens_total", self.source_reopens, "Successful source reopens."),
             ("stream_lines_dropped_total", self.stream_lines_dropped, "Lines not delivered to slow stream clients."),

@@ -114,6 +114,11 @@ pub struct SegmenterCard {
     /// Mask probability at or above which a pixel belongs to the instance.
     #[serde(default = "default_mask")]
     pub mask_threshold: f32,
+    /// Class-agnostic duplicate suppression: a detection whose mask overlaps a
+    /// higher-scored one by more than this IoU is dropped, whatever the two labels
+    /// ([`super::duplicates`]). Absent (a bare torchvision export): off.
+    #[serde(default)]
+    pub duplicate_mask_iou: Option<f32>,
     /// Training provenance and measured accuracy (not read by the runtime).
     #[serde(default)]
     pub training: serde_json::Value,
@@ -143,6 +148,7 @@ impl SegmenterCard {
             labels: BTreeMap::new(),
             score_threshold: DEFAULT_SCORE_THRESHOLD,
             mask_threshold: DEFAULT_MASK_THRESHOLD,
+            duplicate_mask_iou: None,
             training: serde_json::Value::Null,
             metrics: serde_json::Value::Null,
         }
@@ -182,6 +188,11 @@ impl SegmenterCard {
         if !(0.0..=1.0).contains(&card.score_threshold) || !(0.0..=1.0).contains(&card.mask_threshold) {
             return bad("fields `score_threshold` and `mask_threshold` must lie in [0, 1]".into());
         }
+        if let Some(iou) = card.duplicate_mask_iou
+            && !(iou > 0.0 && iou < 1.0)
+        {
+            return bad(format!("field `duplicate_mask_iou`: must lie in (0, 1), found {iou}"));
+        }
         Ok(card)
     }
 
@@ -211,4 +222,29 @@ pub fn resolve(model: &Path) -> Result<(SegmenterCard, PathBuf)> {
         return Ok((card, model.to_path_buf()));
     }
     Ok((SegmenterCard::bare(model), model.to_path_buf()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn card_with(extra: &str) -> Result<SegmenterCard> {
+        let dir = tempfile::tempdir().map_err(|e| Error::io(Path::new("tempdir"), e))?;
+        let path = dir.path().join("m.card.json");
+        let text = format!(r#"{{"format": "tricons-segmenter-card", "version": 1, "model": "m.onnx"{extra}}}"#);
+        std::fs::write(&path, text).map_err(|e| Error::io(&path, e))?;
+        SegmenterCard::read(&path)
+    }
+
+    #[test]
+    fn duplicate_suppression_is_off_unless_set_and_checked() {
+        assert_eq!(card_with("").unwrap().duplicate_mask_iou, None);
+        assert_eq!(card_with(r#", "duplicate_mask_iou": 0.5"#).unwrap().duplicate_mask_iou, Some(0.5));
+        for bad in ["0", "1", "-0.2", "1.5"] {
+            let e = card_with(&format!(r#", "duplicate_mask_iou": {bad}"#)).unwrap_err().to_string();
+            assert!(e.contains("duplicate_mask_iou"), "{e}");
+        }
+        let e = card_with(r#", "duplicate_mask_iou": "high""#).unwrap_err().to_string();
+        assert!(e.contains("duplicate_mask_iou"), "{e}");
+    }
 }

@@ -7,11 +7,13 @@
 //! full-resolution masks pasted in Rust ([`paste`]).
 
 pub mod card;
+pub mod duplicates;
 pub mod paste;
 pub mod rewrite;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use tract_onnx::prelude::*;
@@ -81,6 +83,8 @@ pub struct Segmenter {
     executor: tract_linalg::multithread::Executor,
     /// Plans per (width, height, raised score floor bits).
     plans: Mutex<HashMap<PlanKey, Arc<TypedRunnableModel>>>,
+    /// Detections [`Segmenter::segment`] dropped as duplicates so far.
+    duplicates_dropped: AtomicU64,
 }
 
 /// A plan's image width and height and the bits of its raised score floor (`None`: the
@@ -225,6 +229,7 @@ impl Segmenter {
             quantized,
             executor: tract_linalg::multithread::Executor::SingleThread,
             plans: Mutex::new(HashMap::new()),
+            duplicates_dropped: AtomicU64::new(0),
         })
     }
 
@@ -367,11 +372,13 @@ impl Segmenter {
     /// Detections scoring at least the card's threshold, with thresholded masks. The graph
     /// runs with its score floor raised to that threshold, so NMS and the mask head only
     /// work on what is kept (the same detections as filtering the unchanged graph's).
+    /// With the card's `duplicate_mask_iou`, duplicates across classes are then dropped
+    /// ([`duplicates`]; counted in [`Self::duplicates_dropped`]).
     pub fn segment(&self, image: &ColorImage) -> Result<Vec<SegInstance>> {
         let raw = self.detect(image, Some(self.card.score_threshold))?;
         let (w, h) = (image.width as usize, image.height as usize);
         let t = self.card.mask_threshold;
-        Ok((0..raw.scores.len())
+        let mut instances: Vec<SegInstance> = (0..raw.scores.len())
             .map(|i| SegInstance {
                 label: raw.labels[i],
                 class_name: self.card.class_name(raw.labels[i]).map(str::to_owned),
@@ -384,7 +391,22 @@ impl Segmenter {
                     .map(|m| m.iter().map(|&p| p >= t).collect())
                     .unwrap_or_else(|| vec![false; w * h]),
             })
-            .collect())
+            .collect();
+        if let Some(iou) = self.card.duplicate_mask_iou {
+            let dropped = duplicates::suppress_duplicates(&mut instances, w, f64::from(iou));
+            self.duplicates_dropped.fetch_add(dropped as u64, Ordering::Relaxed);
+        }
+        Ok(instances)
+    }
+
+    /// How many detections [`Self::segment`] has dropped as duplicates.
+    pub fn duplicates_dropped(&self) -> u64 {
+        self.duplicates_dropped.load(Ordering::Relaxed)
+    }
+
+    /// Turn duplicate suppression on at `iou` or off (`None`), overriding the card.
+    pub fn set_duplicate_mask_iou(&mut self, iou: Option<f32>) {
+        self.card.duplicate_mask_iou = iou;
     }
 
     fn detect(&self, image: &ColorImage, min_score: Option<f32>) -> Result<RawDetections> {

@@ -1,5 +1,7 @@
 //! What several commands share: the shipped files they default to, the thread count, the
-//! mask source.
+//! mask source, the ground truth and AP of the segmenter commands.
+
+use tricons::metrics::mask_ap::Object2d;
 
 /// The shipped demo recording (four SynthNOCS-test frames).
 pub const DEFAULT_RECORDING: &str = "tests/data/synthnocs-demo";
@@ -32,4 +34,57 @@ pub enum MaskSource {
     Model,
     /// The recording's ground-truth instance masks (isolates the pose model).
     Gt,
+}
+
+/// Frame `i`'s ground truth: its instances and their full-image masks (an error naming
+/// the frame when it has none).
+pub fn ground_truth(
+    rec: &dyn tricons::recording::Recording,
+    i: usize,
+) -> anyhow::Result<(Vec<tricons::recording::GtInstance>, Vec<Vec<bool>>)> {
+    let Some(ann) = rec.read_annotations(i)? else {
+        anyhow::bail!("frame {} of {} has no ground truth", rec.frame_id(i), rec.describe());
+    };
+    let Some(masks) = ann.instance_masks() else {
+        anyhow::bail!("frame {} of {} has no instance mask", rec.frame_id(i), rec.describe());
+    };
+    Ok((ann.instances, masks))
+}
+
+/// Frame `i`'s ground-truth objects as 2-D detections (class, the mask's tight box, mask).
+pub fn ground_truth_2d(rec: &dyn tricons::recording::Recording, i: usize) -> anyhow::Result<Vec<Object2d>> {
+    let width = rec.intrinsics().width as usize;
+    let (gt, masks) = ground_truth(rec, i)?;
+    Ok(gt
+        .iter()
+        .zip(masks)
+        .map(|(g, m)| Object2d { class: g.class, score: 1.0, box_xyxy: Object2d::mask_box(&m, width), mask: m })
+        .collect())
+}
+
+/// A segmenter's detections of NOCS categories as 2-D objects (other labels left out).
+pub fn detections_2d(dets: &[tricons::segment::SegInstance]) -> Vec<Object2d> {
+    dets.iter()
+        .filter_map(|d| {
+            Some(Object2d {
+                class: d.category?,
+                score: d.score as f64,
+                box_xyxy: d.box_xyxy.map(f64::from),
+                mask: d.mask.clone(),
+            })
+        })
+        .collect()
+}
+
+/// Box and mask AP at IoU 0.5 and 0.75, percent, named `bbox_AP50` ... `mask_AP75`.
+pub fn segmentation_ap(frames: &[(Vec<Object2d>, Vec<Object2d>)]) -> Vec<(String, Option<f64>)> {
+    use tricons::metrics::mask_ap::{Overlap, average_precision_2d};
+    let mut rows = Vec::new();
+    for (overlap, name) in [(Overlap::Box, "bbox"), (Overlap::Mask, "mask")] {
+        for thr in [0.5, 0.75] {
+            let ap = average_precision_2d(frames, overlap, thr).map(|v| 100.0 * v);
+            rows.push((format!("{name}_AP{}", (thr * 100.0) as u32), ap));
+        }
+    }
+    rows
 }

@@ -10,7 +10,7 @@ use tricons::output::segments::{SegRecord, draw_segments, label_image};
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;
 
-use crate::common::{DEFAULT_RECORDING, DEFAULT_SEGMENTER};
+use crate::common::{DEFAULT_RECORDING, DEFAULT_SEGMENTER, detections_2d, ground_truth_2d, segmentation_ap};
 use crate::progress;
 
 /// Reads one frame's colour image on demand.
@@ -21,11 +21,14 @@ type FrameLoader = Box<dyn Fn() -> Result<tricons::ColorImage>>;
 #[command(after_help = "Examples:\n  \
     tricons segment                                   # shipped Mask R-CNN on the shipped demo recording\n  \
     tricons segment --image photo.png --out data/segment/photo --overlays\n  \
-    tricons segment --model maskrcnn_resnet50_fpn.onnx --min-score 0 --recording data/synthnocs-test\n\n\
+    tricons segment --model maskrcnn_resnet50_fpn.onnx --min-score 0 --recording data/synthnocs-test\n  \
+    tricons segment --recording data/synthnocs-val --keep-duplicates --json data/segment/val-dups.json\n\n\
     Writes <out>/segments.jsonl (one line per frame: label, class, score, box, run-length mask)\n\
     and <out>/<frame>_labels.png (8-bit, pixel = 1 + instance index); --overlays adds\n\
     <out>/<frame>_segments.png. Any torchvision Mask R-CNN ONNX export loads; without a\n\
-    card beside it, labels stay numeric and the score threshold is 0.5.")]
+    card beside it, labels stay numeric and the score threshold is 0.5. On a recording with\n\
+    ground truth it prints box and mask AP (COCO 101-point, mean over the NOCS classes) and\n\
+    detections per object.")]
 pub struct Args {
     /// Recording directory (ignored when --image is given).
     #[arg(long, default_value = DEFAULT_RECORDING)]
@@ -48,6 +51,27 @@ pub struct Args {
     /// Only the first N frames of the recording.
     #[arg(long)]
     limit: Option<usize>,
+    /// Keep detections the card's duplicate suppression (`duplicate_mask_iou`) would drop.
+    #[arg(long)]
+    keep_duplicates: bool,
+    /// Write the ground-truth evaluation (AP, detection counts) as JSON here.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+}
+
+/// What `tricons segment` measured against a recording's ground truth.
+#[derive(serde::Serialize)]
+struct Evaluation {
+    recording: String,
+    model: String,
+    frames: usize,
+    objects: usize,
+    detections: usize,
+    detections_per_object: f64,
+    duplicate_mask_iou: Option<f32>,
+    duplicates_dropped: u64,
+    /// bbox_AP50 .. mask_AP75, percent.
+    ap: std::collections::BTreeMap<String, Option<f64>>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -57,11 +81,16 @@ pub fn run(args: Args) -> Result<()> {
         anyhow::ensure!((0.0..=1.0).contains(&s), "--min-score must lie in [0, 1], got {s}");
         seg.set_score_threshold(s);
     }
+    if args.keep_duplicates {
+        seg.set_duplicate_mask_iou(None);
+    }
     log::info!("segmenter {} loaded in {:.2} s", seg.onnx_path().display(), t_load.elapsed().as_secs_f64());
     // (frame id, loader) pairs: images or recording frames.
+    let mut recording = None;
     let frames: Vec<(String, FrameLoader)> = if args.image.is_empty() {
         let rec =
             std::rc::Rc::new(open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?);
+        recording = Some(rec.clone());
         let n = args.limit.unwrap_or(usize::MAX).min(rec.len());
         (0..n)
             .map(|i| {
@@ -89,9 +118,18 @@ pub fn run(args: Args) -> Result<()> {
     let out =
         args.out.clone().unwrap_or_else(|| PathBuf::from("data/segment").join(name.unwrap_or_else(|| "frames".into())));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    // Evaluate against the ground truth when the recording has it.
+    let evaluate = match &recording {
+        Some(rec) if !rec.is_empty() => rec.read_annotations(0)?.is_some_and(|a| a.mask.is_some()),
+        _ => false,
+    };
+    if args.json.is_some() && !evaluate {
+        anyhow::bail!("--json needs a recording with ground-truth masks (--recording)");
+    }
     let bar = progress::bar(frames.len(), "segment");
     let (mut records, mut total, mut secs) = (Vec::new(), 0usize, 0f64);
-    for (id, load) in &frames {
+    let mut eval_frames = Vec::new();
+    for (index, (id, load)) in frames.iter().enumerate() {
         let image = load().with_context(|| format!("reading frame {id}"))?;
         let t = Instant::now();
         let instances = seg.segment(&image).with_context(|| format!("segmenting frame {id}"))?;
@@ -102,6 +140,9 @@ pub fn run(args: Args) -> Result<()> {
             write_atomic(&out.join(format!("{id}_segments.png")), &draw_segments(&image, &instances)?)?;
         }
         records.push(SegRecord::new(id, image.width, image.height, &instances));
+        if let (true, Some(rec)) = (evaluate, &recording) {
+            eval_frames.push((detections_2d(&instances), ground_truth_2d(rec.as_ref().as_ref(), index)?));
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -119,5 +160,32 @@ pub fn run(args: Args) -> Result<()> {
         1e3 * secs / records.len().max(1) as f64,
         jsonl.display()
     );
+    if evaluate {
+        let objects: usize = eval_frames.iter().map(|(_, g)| g.len()).sum();
+        let detections: usize = eval_frames.iter().map(|(d, _)| d.len()).sum();
+        let eval = Evaluation {
+            recording: args.recording.display().to_string(),
+            model: seg.onnx_path().display().to_string(),
+            frames: eval_frames.len(),
+            objects,
+            detections,
+            detections_per_object: detections as f64 / objects.max(1) as f64,
+            duplicate_mask_iou: seg.card().duplicate_mask_iou,
+            duplicates_dropped: seg.duplicates_dropped(),
+            ap: segmentation_ap(&eval_frames).into_iter().collect(),
+        };
+        let dup = eval.duplicate_mask_iou.map_or_else(|| "off".to_string(), |t| format!("mask IoU > {t}"));
+        println!(
+            "{} frames: {} detections of NOCS classes for {} objects ({:.2} per object); duplicate suppression {dup}: {} dropped",
+            eval.frames, eval.detections, eval.objects, eval.detections_per_object, eval.duplicates_dropped
+        );
+        for (name, ap) in &eval.ap {
+            println!("{name:<10}{:>8}", ap.map_or_else(|| "-".to_string(), |v| format!("{v:.1}")));
+        }
+        if let Some(path) = &args.json {
+            let text = serde_json::to_string_pretty(&eval)?;
+            write_atomic(path, format!("{text}\n").as_bytes())?;
+        }
+    }
     Ok(())
 }

@@ -9,14 +9,15 @@ use anyhow::{Context, Result, bail};
 use clap::Args as ClapArgs;
 use serde::Serialize;
 use tricons::atomic::write_atomic;
-use tricons::metrics::mask_ap::{Object2d, Overlap, average_precision_2d, box_iou, mask_iou};
+use tricons::metrics::mask_ap::{box_iou, mask_iou};
 use tricons::metrics::{EvalConfig, IouMode, evaluate};
 use tricons::output::PredInstance;
 use tricons::pose::{InstanceOutcome, PoseEstimator};
 use tricons::quant::{ModelKind, QuantProfile};
-use tricons::recording::{GtInstance, Recording, open_recording};
-use tricons::segment::{SegInstance, Segmenter};
+use tricons::recording::{Recording, open_recording};
+use tricons::segment::Segmenter;
 
+use crate::common::{detections_2d, ground_truth, ground_truth_2d, segmentation_ap};
 use crate::progress;
 
 /// Arguments of `tricons validate`.
@@ -175,16 +176,6 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-fn ground_truth(rec: &dyn Recording, i: usize) -> Result<(Vec<GtInstance>, Vec<Vec<bool>>)> {
-    let Some(ann) = rec.read_annotations(i)? else {
-        bail!("frame {} of {} has no ground truth", rec.frame_id(i), rec.describe());
-    };
-    let Some(masks) = ann.instance_masks() else {
-        bail!("frame {} of {} has no instance mask", rec.frame_id(i), rec.describe());
-    };
-    Ok((ann.instances, masks))
-}
-
 fn check_same_graph(profile: &QuantProfile, float_sha: &str, float: &Path) -> Result<()> {
     if !profile.onnx_sha256.eq_ignore_ascii_case(float_sha) {
         bail!(
@@ -325,19 +316,6 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
     Ok(finish(args, Measured { kind: ModelKind::Pose, frames, items, int8_nodes, metrics, outputs, times }))
 }
 
-fn objects(dets: &[SegInstance]) -> Vec<Object2d> {
-    dets.iter()
-        .filter_map(|d| {
-            Some(Object2d {
-                class: d.category?,
-                score: d.score as f64,
-                box_xyxy: d.box_xyxy.map(f64::from),
-                mask: d.mask.clone(),
-            })
-        })
-        .collect()
-}
-
 fn validate_segmenter(args: &Args, rec: &dyn Recording, frames: usize, profile: &QuantProfile) -> Result<Report> {
     let threads = args.threads.unwrap_or(crate::common::DEFAULT_SEGMENTER_THREADS).max(1);
     let float = Segmenter::load(&args.float)
@@ -359,13 +337,7 @@ fn validate_segmenter(args: &Args, rec: &dyn Recording, frames: usize, profile: 
     let (mut items, mut unmatched) = (0usize, 0usize);
     for i in 0..frames {
         let frame = rec.read_frame(i)?;
-        let (gt, gt_masks) = ground_truth(rec, i)?;
-        let w = frame.color.width as usize;
-        let gt_objects: Vec<Object2d> = gt
-            .iter()
-            .zip(gt_masks)
-            .map(|(g, m)| Object2d { class: g.class, score: 1.0, box_xyxy: Object2d::mask_box(&m, w), mask: m })
-            .collect();
+        let gt_objects = ground_truth_2d(rec, i)?;
         let mut dets = Vec::new();
         for (model, t) in [&float, &int8].into_iter().zip(&mut times) {
             let start = Instant::now();
@@ -400,18 +372,16 @@ fn validate_segmenter(args: &Args, rec: &dyn Recording, frames: usize, profile: 
             }
         }
         unmatched += used.iter().filter(|u| !**u).count();
-        eval_f.push((objects(&dets[0]), gt_objects.clone()));
-        eval_q.push((objects(&dets[1]), gt_objects));
+        eval_f.push((detections_2d(&dets[0]), gt_objects.clone()));
+        eval_q.push((detections_2d(&dets[1]), gt_objects));
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let mut metrics = Vec::new();
-    for (overlap, name) in [(Overlap::Box, "bbox"), (Overlap::Mask, "mask")] {
-        for thr in [0.5, 0.75] {
-            let pct = |f: &[(Vec<Object2d>, Vec<Object2d>)]| average_precision_2d(f, overlap, thr).map(|v| 100.0 * v);
-            metrics.push(metric_row(&format!("{name}_AP{}", (thr * 100.0) as u32), pct(&eval_f), pct(&eval_q)));
-        }
-    }
+    let metrics = segmentation_ap(&eval_f)
+        .into_iter()
+        .zip(segmentation_ap(&eval_q))
+        .map(|((name, f), (_, q))| metric_row(&name, f, q))
+        .collect();
     let mean_iou = masks_iou.iter().sum::<f64>() / masks_iou.len().max(1) as f64;
     let min_iou = masks_iou.iter().copied().fold(f64::INFINITY, f64::min);
     let outputs = vec![
