@@ -143,12 +143,9 @@ impl PoseEstimator {
         let kernels = crate::pose::rewrite::rewrite(&mut proto);
         log::debug!("{}: {kernels:?}", onnx_path.display());
         let cfg = card.preprocess_config();
-        // the graph as exported (symbolic batch) is checked against the card, then typed
-        // again with every input dimension concrete (one instance)
-        let inference = onnx.model_for_proto_model(&proto).map_err(model_err)?;
-        let symbolic = inference.into_typed().map_err(model_err)?;
-        check_inputs(&symbolic, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
-        drop(symbolic);
+        // the graph's declared inputs are checked against the card, then it is typed with
+        // every input dimension concrete (one instance)
+        check_inputs(&proto, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
         let mut folded = proto.clone();
         let report = crate::pose::fold::fold_batch_norms(&mut folded);
         let concrete = |proto: &ModelProto| {
@@ -362,17 +359,40 @@ fn decode_outputs(out: &TVec<TValue>, b: usize) -> Result<Vec<InstanceOutcome>> 
 }
 
 /// The graph's inputs must be rgb (batch, 3, S, S), pts (batch, N, 3), choose (batch, N).
-fn check_inputs(model: &TypedModel, cfg: &PreprocessConfig) -> std::result::Result<(), String> {
+/// The graph's declared inputs (initializers left out) against the card: `rgb (B, 3, S, S)`,
+/// `pts (B, N, 3)`, `choose (B, N)`, whatever the batch dimension.
+fn check_inputs(proto: &ModelProto, cfg: &PreprocessConfig) -> std::result::Result<(), String> {
+    use tract_onnx::pb::tensor_shape_proto::dimension;
+    use tract_onnx::pb::type_proto;
+    let graph = proto.graph.as_ref().ok_or("the file holds no graph")?;
+    let initializers: std::collections::HashSet<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
+    let inputs: Vec<_> = graph.input.iter().filter(|i| !initializers.contains(i.name.as_str())).collect();
     let (n, s) = (cfg.n_points as i64, cfg.crop_size as i64);
     let want: [(&str, Vec<i64>); 3] = [("rgb", vec![3, s, s]), ("pts", vec![n, 3]), ("choose", vec![n])];
-    if model.inputs.len() != 3 {
-        return Err(format!("the graph has {} inputs, its card 3 (rgb, pts, choose)", model.inputs.len()));
+    if inputs.len() != 3 {
+        return Err(format!("the graph has {} inputs, its card 3 (rgb, pts, choose)", inputs.len()));
     }
-    for (outlet, (name, dims)) in model.inputs.iter().zip(want) {
-        let fact = model.outlet_fact(*outlet).map_err(|e| e.to_string())?;
-        let got: Vec<Option<i64>> = fact.shape.iter().skip(1).map(|d| d.to_i64().ok()).collect();
-        if got != dims.iter().map(|&d| Some(d)).collect::<Vec<_>>() {
-            return Err(format!("input {name} has shape {:?}, its card says (batch, {dims:?})", fact.shape));
+    for (input, (name, dims)) in inputs.iter().zip(want) {
+        let shape: Vec<Option<i64>> = match input.r#type.as_ref().and_then(|t| t.value.as_ref()) {
+            Some(type_proto::Value::TensorType(t)) => t
+                .shape
+                .iter()
+                .flat_map(|s| &s.dim)
+                .map(|d| match d.value {
+                    Some(dimension::Value::DimValue(v)) => Some(v),
+                    _ => None,
+                })
+                .collect(),
+            None => Vec::new(),
+        };
+        let show: Vec<String> = shape.iter().map(|d| d.map_or_else(|| "?".into(), |v| v.to_string())).collect();
+        let ok = shape.len() == dims.len() + 1 && shape[1..].iter().zip(&dims).all(|(g, w)| *g == Some(*w));
+        if !ok {
+            return Err(format!(
+                "input {name} (graph input {:?}) has shape [{}], its card says (batch, {dims:?})",
+                input.name,
+                show.join(", ")
+            ));
         }
     }
     Ok(())

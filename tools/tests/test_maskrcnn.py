@@ -148,3 +148,27 @@ def test_raised_score_floor_keeps_the_same_detections_in_onnxruntime():
     np.testing.assert_allclose(raised[2], plain[2][keep], atol=1e-6)
     np.testing.assert_allclose(raised[0], plain[0][keep], atol=1e-3)
     assert np.abs(raised[3] - plain[3][keep]).max() < 1e-4
+
+
+def test_import_onnx_reproduces_the_shipped_segmenter(tmp_path):
+    """import-onnx rebuilds a PyTorch checkpoint from models/maskrcnn-light.onnx, whose
+    export folded BatchNorm into the convs: in eval mode it detects what onnxruntime does."""
+    import torch
+
+    assert mr._scope_path("/backbone/body/body.1/block/block.0/block.0.0/Conv") == "backbone.body.1.block.0.0"
+    assert mr._scope_path("/rpn/head/cls_logits_2/Conv") == "rpn.head.cls_logits"
+    model_path = REPO / "models" / "maskrcnn-light.onnx"
+    image = REPO / "tests" / "data" / "synthnocs-demo" / "000000_color.png"
+    out = tmp_path / "init.pt"
+    mr.main(["import-onnx", "--onnx", str(model_path), "--out", str(out), "--threads", "1"])
+    state = torch.load(out, map_location="cpu")
+    assert state["step"] == 0 and state["args"]["import_onnx"] == str(model_path)
+    model = mr.build_light()
+    model.load_state_dict(state["model"])
+    fx = mr.ort_fixture(str(model_path), str(image))
+    assert len(fx["instances"]) > 5
+    cmp = mr.compare_detections(fx, mr.torch_record(model, str(image)))
+    assert cmp["unmatched"] == 0, cmp
+    assert cmp["box_px"] <= 0.5, cmp
+    assert cmp["score"] <= 1e-3, cmp
+    assert cmp["mask_iou"] >= 0.98, cmp

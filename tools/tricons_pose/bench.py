@@ -20,7 +20,7 @@ usable instances in one batch (graph only; preprocessing is reported by tract).
 Medians over ``--runs`` after ``--warmup``; ``--threads`` for every runtime::
 
     cargo run --release -- bench --runs 20 --json ../data/bench/shipped-tract.json
-    python -m tricons_pose.bench --checkpoint ../models/checkpoints/tricons-pose-shipped/checkpoint.pt \\
+    python -m tricons_pose.bench --checkpoint ../models/checkpoints/tricons-pose-v2/model-step6000.pt \\
         --standard-onnx ../data/models/tricons-pose-standard.onnx --tract-json ../data/bench/shipped-tract.json
 """
 

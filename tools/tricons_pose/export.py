@@ -14,7 +14,7 @@ The same network with standard ONNX ops in place of the ``ai.tricons`` nodes
 (:mod:`ops_standard`; for onnxruntime, e.g. in the benchmark; checked against
 PyTorch with onnxruntime instead of the reference evaluator)::
 
-    python -m tricons_pose.export --checkpoint ../models/checkpoints/tricons-pose-shipped/checkpoint.pt \
+    python -m tricons_pose.export --checkpoint ../models/checkpoints/tricons-pose-v2/model-step6000.pt \
         --standard-ops --out ../data/models/tricons-pose-standard.onnx
 
 Writes the ``.onnx`` file and ``<stem>.card.json`` beside it (both atomically:

@@ -8,7 +8,10 @@ random-weight ResNet-50-FPN export the runtime is checked against.
 Commands (run from tools/ with ``python -m tricons_pose.maskrcnn ...``):
 
 * ``train``  -- train the light model on a SynthNOCS recording (CPU), with
-  checkpoints and a progress log; resumable.
+  checkpoints and a progress log; resumable; ``--init`` starts from another
+  checkpoint's weights, ``--freeze-bn`` keeps BatchNorm statistics fixed.
+* ``import-onnx`` -- rebuild a checkpoint from a light ONNX export (BatchNorm
+  folded into the convs by the export becomes identity BatchNorm), to fine-tune.
 * ``export`` -- export a checkpoint the way a user would
   (``torch.onnx.export``, TorchScript exporter, opset 17) plus a model card.
 * ``export-r50`` -- an unmodified ``maskrcnn_resnet50_fpn`` with random weights.
@@ -31,6 +34,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -204,6 +208,11 @@ def train(args):
         opt.load_state_dict(state["opt"])
         step = state["step"]
         print(f"resumed at step {step}", file=log)
+    elif args.init:
+        # Weights only: the optimiser and the learning-rate schedule start afresh.
+        state = torch.load(args.init, map_location="cpu")
+        model.load_state_dict(state["model"])
+        print(f"initialised from {args.init}", file=log)
 
     def lr_at(s):
         if s < args.warmup:
@@ -212,6 +221,14 @@ def train(args):
         return args.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
 
     model.train()
+    if args.freeze_bn:
+        # BatchNorm normalises with its running statistics and does not update them (their
+        # affine weight and bias still train: after import-onnx the bias is the conv's only one).
+        for m in model.modules():
+            if isinstance(m, nn.BatchNorm2d):
+                m.eval()
+    elif args.init and not ckpt.exists():
+        print("warning: --init without --freeze-bn: batch statistics replace the running ones", file=log)
     smooth = None
     while step < args.steps:
         idx = rng.integers(0, len(data), args.batch)
@@ -228,7 +245,7 @@ def train(args):
         step += 1
         vals = {k: float(v.detach()) for k, v in losses.items()}
         smooth = vals if smooth is None else {k: 0.95 * smooth[k] + 0.05 * vals[k] for k in vals}
-        if step % 20 == 0:
+        if step % 20 == 0 or step == 1:
             parts = " ".join(f"{k.replace('loss_', '')}={v:.3f}" for k, v in smooth.items())
             print(f"step {step}/{args.steps} lr={lr_at(step):.2e} {parts} {time.time() - t0:.0f}s", file=log)
         if step % args.ckpt_every == 0 or step == args.steps:
@@ -306,6 +323,180 @@ def export_r50_cmd(args):
     out = Path(args.out)
     export_onnx(model, out, opset=args.opset)
     print(f"wrote {out}")
+
+
+# --------------------------------------------------------------------------- import from ONNX
+
+
+def _scope_path(node_name: str) -> str | None:
+    """The module path a TorchScript-exported node name encodes, or None if it encodes none:
+    ``/backbone/body/body.1/block/block.0/block.0.0/Conv`` -> ``backbone.body.1.block.0.0``.
+    A container's child scope is the container's scope plus ``.child``; a module called again
+    gets ``_2``, ``_3``... (``/rpn/head/cls_logits_2/Conv``)."""
+    parts = node_name.split("/")
+    if len(parts) < 3 or parts[0] != "":
+        return None
+    path, prev = [], None
+    for part in parts[1:-1]:
+        part = re.sub(r"_\d+$", "", part)
+        path.append(part[len(prev) + 1 :] if prev and part.startswith(prev + ".") else part)
+        prev = part
+    return ".".join(path)
+
+
+def _conv_calls(model: nn.Module) -> tuple[list[str], dict[str, str]]:
+    """The names of ``model``'s Conv2d modules in the order an eval-mode forward calls them
+    (a shared module, like the RPN head's, once per call), and for each conv whose output
+    goes straight into a BatchNorm2d, that BatchNorm2d's name."""
+    names = {m: n for n, m in model.named_modules()}
+    calls: list[str] = []
+    outputs: dict[int, tuple[torch.Tensor, str]] = {}  # keeps the tensors alive: ids stay unique
+    bn_of: dict[str, str] = {}
+
+    def on_conv(mod, inputs, out):
+        calls.append(names[mod])
+        outputs[id(out)] = (out, names[mod])
+
+    def on_bn(mod, inputs):
+        hit = outputs.get(id(inputs[0]))
+        if hit is not None and hit[0] is inputs[0]:
+            bn_of[hit[1]] = names[mod]
+
+    hooks = [m.register_forward_hook(on_conv) for m in names if isinstance(m, nn.Conv2d)]
+    hooks += [m.register_forward_pre_hook(on_bn) for m in names if isinstance(m, nn.BatchNorm2d)]
+    was_training = model.training
+    try:
+        model.eval()
+        with torch.no_grad():
+            model([torch.zeros(3, 64, 64)])  # the mask head runs even on zero detections
+    finally:
+        for h in hooks:
+            h.remove()
+        model.train(was_training)
+    return calls, bn_of
+
+
+def state_from_onnx(path: str, model: nn.Module | None = None) -> dict[str, torch.Tensor]:
+    """Rebuild a ``build_light()`` state_dict from an eval-mode ``export_onnx`` file.
+
+    The TorchScript exporter keeps the state_dict names of what it does not touch (FPN,
+    heads, Linear layers, convs without BatchNorm) and folds each eval-mode BatchNorm into
+    the conv before it, under unnamed initializers (``onnx::Conv_2847``). Named
+    initializers are loaded by name; the Conv nodes are matched one to one, in graph order,
+    to the Conv2d calls of an eval-mode forward (a shared module once per call, always with
+    the same initializers), each match checked on weight shape, groups, strides, pads and
+    dilations, on the initializer name where it has one and on the module path the node
+    name encodes. A folded conv gets the folded weight, and its BatchNorm becomes the
+    identity plus the folded bias (weight 1, running mean 0, running variance 1 - eps),
+    so the model in eval mode computes what the ONNX graph does. The original BatchNorm
+    statistics are gone: train the result with BatchNorm in eval mode (``--freeze-bn``).
+    """
+    import onnx
+    from onnx import numpy_helper
+
+    model = build_light() if model is None else model
+    graph = onnx.load(path).graph
+    if any(n.op_type == "BatchNormalization" for n in graph.node):
+        raise ValueError(f"{path} has BatchNormalization nodes: only eval-mode, constant-folded exports are supported")
+    inits = {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer}
+    sd = model.state_dict()
+    state: dict[str, torch.Tensor] = {}
+    for name, value in inits.items():
+        if name in sd:
+            if value.shape != sd[name].shape:
+                raise ValueError(f"{name}: {tuple(value.shape)} in {path}, {tuple(sd[name].shape)} in the model")
+            state[name] = value.to(sd[name].dtype)
+
+    calls, bn_of = _conv_calls(model)
+    nodes = [n for n in graph.node if n.op_type == "Conv"]
+    if len(nodes) != len(calls):
+        raise ValueError(f"{len(nodes)} Conv nodes in {path}, {len(calls)} Conv2d calls in the model")
+    modules = dict(model.named_modules())
+    n_convs = sum(isinstance(m, nn.Conv2d) for m in modules.values())
+    used: dict[str, tuple[str, ...]] = {}
+    for node, name in zip(nodes, calls):
+        conv = modules[name]
+        where = f"Conv node {node.name!r} -> {name}"
+        scope = _scope_path(node.name)
+        if scope in modules and isinstance(modules[scope], nn.Conv2d) and scope != name:
+            raise ValueError(f"{where}: the node name says {scope}")
+        inputs = tuple(i for i in node.input[1:] if i)
+        if name in used:
+            if used[name] != inputs:
+                raise ValueError(f"{where}: {name} is called again with other initializers {inputs} != {used[name]}")
+            continue
+        used[name] = inputs
+        attrs = {a.name: onnx.helper.get_attribute_value(a) for a in node.attribute}
+        w = inits[inputs[0]]
+        b = inits[inputs[1]] if len(inputs) > 1 else None
+        ph, pw = conv.padding
+        got = (tuple(w.shape), attrs.get("group", 1), list(attrs.get("strides", [1, 1])),
+               list(attrs.get("pads", [0, 0, 0, 0])), list(attrs.get("dilations", [1, 1])))
+        want = (tuple(conv.weight.shape), conv.groups, list(conv.stride), [ph, pw, ph, pw], list(conv.dilation))
+        if got != want:
+            raise ValueError(f"{where}: (shape, group, strides, pads, dilations) {got} in the graph, {want} in the model")
+        if inputs[0] in sd and inputs[0] != f"{name}.weight":
+            raise ValueError(f"{where}: its weight is named {inputs[0]}")
+        bias = b if b is not None else torch.zeros(w.shape[0])
+        state[f"{name}.weight"] = w
+        bn = bn_of.get(name)
+        if bn is None:
+            if conv.bias is not None:
+                state[f"{name}.bias"] = bias
+            elif b is not None and bool(b.any()):
+                raise ValueError(f"{where}: a bias in the graph, none in the model")
+            continue
+        if conv.bias is not None:
+            state[f"{name}.bias"] = torch.zeros_like(bias)
+        eps = modules[bn].eps
+        state[f"{bn}.weight"] = torch.ones_like(bias)
+        state[f"{bn}.bias"] = bias
+        state[f"{bn}.running_mean"] = torch.zeros_like(bias)
+        state[f"{bn}.running_var"] = torch.full_like(bias, 1.0 - eps)
+        state[f"{bn}.num_batches_tracked"] = torch.zeros((), dtype=torch.long)
+    if len(used) != n_convs:
+        raise ValueError(f"{len(used)} of the model's {n_convs} Conv2d modules matched")
+    missing = [k for k in sd if k not in state]
+    if missing:
+        raise ValueError(f"{len(missing)} state_dict entries not in {path}: {missing[:5]}...")
+    return {k: state[k].to(sd[k].dtype) for k in sd}
+
+
+def torch_record(model: nn.Module, image: str) -> dict:
+    """An eval-mode PyTorch model's detections on one PNG, in the record format
+    ``compare_detections`` takes (boxes, labels, scores, 0.5-thresholded masks)."""
+    from PIL import Image
+
+    img = np.asarray(Image.open(image).convert("RGB"))
+    x = torch.from_numpy(img.copy()).permute(2, 0, 1).float() / 255.0
+    model.eval()
+    with torch.no_grad():
+        det = model([x])[0]
+    return {
+        "instances": [
+            {"box": [float(v) for v in box], "label": int(label), "score": float(score), "mask_rle": rle(m[0].numpy() >= 0.5)}
+            for box, label, score, m in zip(det["boxes"], det["labels"], det["scores"], det["masks"])
+        ]
+    }
+
+
+def import_onnx_cmd(args):
+    import hashlib
+
+    torch.set_num_threads(args.threads)
+    model = build_light(args.min_size, args.max_size)
+    state = state_from_onnx(args.onnx, model)
+    model.load_state_dict(state)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    source = {"import_onnx": str(args.onnx), "sha256": hashlib.sha256(Path(args.onnx).read_bytes()).hexdigest()}
+    tmp = out.with_suffix(".pt.tmp")
+    torch.save({"model": state, "step": 0, "args": source}, tmp)
+    os.replace(tmp, out)
+    print(f"wrote {out}: {len(state)} state_dict entries from {args.onnx}")
+    if args.check:
+        cmp = compare_detections(ort_fixture(args.onnx, args.check), torch_record(model, args.check))
+        print(json.dumps({"check": args.check} | cmp))
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -568,6 +759,9 @@ def main(argv=None):
     t.add_argument("--ckpt-every", type=int, default=100)
     t.add_argument("--min-size", type=int, default=LIGHT_MIN_SIZE)
     t.add_argument("--max-size", type=int, default=LIGHT_MAX_SIZE)
+    t.add_argument("--init", help="start from this checkpoint's weights (e.g. import-onnx's) unless OUT/last.pt exists")
+    t.add_argument("--freeze-bn", action="store_true",
+                   help="keep BatchNorm in eval mode (running statistics fixed, affine parameters trained)")
     e = sub.add_parser("export", help="export a checkpoint to ONNX + model card")
     e.add_argument("--checkpoint", required=True)
     e.add_argument("--out", required=True)
@@ -590,6 +784,13 @@ def main(argv=None):
     f.add_argument("--image", required=True)
     f.add_argument("--out", required=True)
     f.add_argument("--min-score", type=float, default=0.0)
+    io = sub.add_parser("import-onnx", help="rebuild a PyTorch checkpoint (for --init) from a light ONNX export")
+    io.add_argument("--onnx", required=True)
+    io.add_argument("--out", required=True)
+    io.add_argument("--check", metavar="PNG", help="also compare its detections on this image with onnxruntime's")
+    io.add_argument("--threads", type=int, default=1)
+    io.add_argument("--min-size", type=int, default=LIGHT_MIN_SIZE)
+    io.add_argument("--max-size", type=int, default=LIGHT_MAX_SIZE)
     bn = sub.add_parser("bench", help="onnxruntime frame latency")
     bn.add_argument("--model", required=True)
     bn.add_argument("--image", required=True)
@@ -597,9 +798,15 @@ def main(argv=None):
     bn.add_argument("--warmup", type=int, default=2)
     bn.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
-    {"bench": bench_cmd, "train": train, "export": export_cmd, "export-r50": export_r50_cmd, "evaluate": evaluate_cmd, "fixture": fixture_cmd}[
-        args.cmd
-    ](args)
+    {
+        "bench": bench_cmd,
+        "train": train,
+        "export": export_cmd,
+        "export-r50": export_r50_cmd,
+        "import-onnx": import_onnx_cmd,
+        "evaluate": evaluate_cmd,
+        "fixture": fixture_cmd,
+    }[args.cmd](args)
 
 
 if __name__ == "__main__":
