@@ -5,7 +5,7 @@
 #
 # Usage: fuzz/run.sh [--smoke] [SECONDS] [TARGET...]   (default: 60 s, every target)
 #   --smoke   no sanitizer (a faster build; crashes and hangs still found) and
-#             SECONDS defaults to 10: the CI smoke run
+#             SECONDS defaults to 10: a quick check
 #
 # Corpora grow in fuzz/corpus/TARGET (seeded from fuzz/seeds/TARGET and the shipped
 # files in fuzz/seeds.txt); crashes land in fuzz/artifacts/TARGET. Copy a crash

@@ -1,12 +1,14 @@
-//! ONNX loading with tricons' custom operators (`ai.tricons`): protobuf parsing, the
-//! custom ops' attribute and shape rules, and typing.
+//! ONNX loading as the pose and segmenter loaders do it: `ops::read_onnx_proto` (protobuf
+//! parsing and the checks before tract), then tract's loader with the `ai.tricons`
+//! operators (their attribute and shape rules), typing and decluttering.
 
 use tract_onnx::prelude::*;
 
 /// One input; errors are fine, panics, aborts and hangs are the bugs.
 pub fn run(data: &[u8]) {
+    let Ok(proto) = tricons::ops::read_onnx_proto(data) else { return };
     let onnx = tricons::ops::onnx_with_custom_ops();
-    if let Ok(model) = onnx.model_for_read(&mut &data[..])
+    if let Ok(model) = onnx.model_for_proto_model(&proto)
         && let Ok(typed) = model.into_typed()
     {
         let _ = typed.into_decluttered();

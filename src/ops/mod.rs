@@ -97,6 +97,20 @@ pub fn onnx_with_custom_ops() -> tract_onnx::Onnx {
     onnx
 }
 
+/// Parses an ONNX file's bytes and refuses what tract's loader would panic on (a graph
+/// output nothing defines, [`proto::undefined_output`]); the message says what is wrong.
+pub fn read_onnx_proto(bytes: &[u8]) -> std::result::Result<tract_onnx::pb::ModelProto, String> {
+    use tract_onnx::prelude::Framework;
+    let proto = onnx_with_custom_ops()
+        .proto_model_for_read(&mut &bytes[..])
+        .map_err(|e| format!("not a readable ONNX model: {e:#}"))?;
+    let graph = proto.graph.as_ref().ok_or("not a readable ONNX model: it holds no graph")?;
+    if let Some(what) = proto::undefined_output(graph) {
+        return Err(format!("not a valid ONNX model: {what} is produced by no node, input or initializer"));
+    }
+    Ok(proto)
+}
+
 /// Why a kernel refused its inputs.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum OpError {

@@ -63,3 +63,55 @@ pub fn tensor_f32(t: &TensorProto) -> Option<Vec<f32>> {
         .is_multiple_of(4)
         .then(|| raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
 }
+
+/// The first graph output (in `graph` or any subgraph of an `If` / `Loop` / `Scan`
+/// attribute) that no graph input, initializer or node of its graph defines. tract's
+/// ONNX loader indexes outputs by name without a check and panics on such a graph, so
+/// the loaders refuse it first with this name.
+pub fn undefined_output(graph: &GraphProto) -> Option<String> {
+    let defined: std::collections::HashSet<&str> = graph
+        .input
+        .iter()
+        .map(|i| i.name.as_str())
+        .chain(graph.initializer.iter().map(|t| t.name.as_str()))
+        .chain(graph.node.iter().flat_map(|n| n.output.iter().map(String::as_str)))
+        .filter(|n| !n.is_empty())
+        .collect();
+    if let Some(o) = graph.output.iter().find(|o| !defined.contains(o.name.as_str())) {
+        let scope = if graph.name.is_empty() { String::new() } else { format!(" of graph {:?}", graph.name) };
+        return Some(format!("output {:?}{scope}", o.name));
+    }
+    graph.node.iter().flat_map(|n| &n.attribute).flat_map(|a| a.g.iter().chain(&a.graphs)).find_map(undefined_output)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tract_onnx::pb::ValueInfoProto;
+
+    fn value(name: &str) -> ValueInfoProto {
+        ValueInfoProto { name: name.into(), ..Default::default() }
+    }
+
+    #[test]
+    fn outputs_nothing_defines_are_named_in_graphs_and_subgraphs() {
+        let relu = NodeProto {
+            op_type: "Relu".into(),
+            input: vec!["x".into()],
+            output: vec!["y".into()],
+            ..Default::default()
+        };
+        let mut g =
+            GraphProto { node: vec![relu], input: vec![value("x")], output: vec![value("y")], ..Default::default() };
+        assert_eq!(undefined_output(&g), None);
+        g.output.push(value("x")); // an input passed through is defined
+        assert_eq!(undefined_output(&g), None);
+        g.output.push(value("z"));
+        assert_eq!(undefined_output(&g).as_deref(), Some("output \"z\""));
+        g.output.pop();
+        let body = GraphProto { name: "then".into(), output: vec![value("w")], ..Default::default() };
+        let attr = AttributeProto { name: "then_branch".into(), g: Some(body), ..Default::default() };
+        g.node.push(NodeProto { op_type: "If".into(), attribute: vec![attr], ..Default::default() });
+        assert_eq!(undefined_output(&g).as_deref(), Some("output \"w\" of graph \"then\""));
+    }
+}

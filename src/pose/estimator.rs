@@ -122,7 +122,7 @@ impl PoseEstimator {
         let onnx_path = card.onnx_path(&card_path);
         let model_err = |e: TractError| Error::model(&onnx_path, format!("{e:#}"));
         let onnx = crate::ops::onnx_with_custom_ops();
-        let mut proto = onnx.proto_model_for_read(&mut bytes.as_slice()).map_err(model_err)?;
+        let mut proto = crate::ops::read_onnx_proto(&bytes).map_err(|m| Error::model(&onnx_path, m))?;
         let quantized = match &profile {
             None => None,
             Some((p, path)) => {
@@ -187,9 +187,7 @@ impl PoseEstimator {
     /// The float graph as loaded (hash-checked), for calibration.
     pub fn float_proto(&self) -> Result<ModelProto> {
         let bytes = self.card.read_verified_graph(&self.card_path)?;
-        crate::ops::onnx_with_custom_ops()
-            .proto_model_for_read(&mut bytes.as_slice())
-            .map_err(|e| Error::model(self.card.onnx_path(&self.card_path), format!("{e:#}")))
+        crate::ops::read_onnx_proto(&bytes).map_err(|m| Error::model(self.card.onnx_path(&self.card_path), m))
     }
 
     /// A runnable plan of another version of this graph (e.g. with calibration outputs),

@@ -140,9 +140,7 @@ impl Segmenter {
         if let Some(want) = card.sha256.as_ref().filter(|w| !hex.eq_ignore_ascii_case(w)) {
             return Err(err(format!("sha256 {hex} does not match its card ({want}): graph and card differ")));
         }
-        let mut proto = crate::ops::onnx_with_custom_ops()
-            .proto_model_for_read(&mut bytes.as_slice())
-            .map_err(|e| err(format!("not a readable ONNX model: {e:#}")))?;
+        let mut proto = crate::ops::read_onnx_proto(&bytes).map_err(&err)?;
         let report = rewrite(&mut proto).map_err(&err)?;
         Ok((proto, report, hex))
     }

@@ -121,7 +121,14 @@ fn idle_connections_cannot_hold_the_slots() {
         wait_for(REQUEST_TIMEOUT * 3, || status_of(addr, "/health").starts_with("HTTP/1.1 200")),
         "/health never answered while idle clients held the slots"
     );
-    assert_eq!(stats.http_request_timeouts.load(Ordering::Relaxed), MAX_CONNECTIONS as u64);
+    // /health gets through once the first idle client has timed out; the others follow
+    // within their own deadlines (accepted a little later each, more so on a loaded machine).
+    let timeouts = || stats.http_request_timeouts.load(Ordering::Relaxed);
+    assert!(
+        wait_for(REQUEST_TIMEOUT * 3, || timeouts() == MAX_CONNECTIONS as u64),
+        "{} request timeouts counted, {MAX_CONNECTIONS} expected",
+        timeouts()
+    );
     for mut c in idle {
         c.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
         let mut text = String::new();
