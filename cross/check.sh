@@ -3,8 +3,10 @@
 # and qemu-user run the release build and the full Rust test suite for
 # aarch64-unknown-linux-gnu and armv7-unknown-linux-gnueabihf.
 #
-# Usage: cross/check.sh [--tests-only] [--all-tests] [aarch64] [armv7]   (default: both targets)
+# Usage: cross/check.sh [--tests-only] [--all-tests] [--build-only] [aarch64] [armv7]   (default: both targets)
 #   --tests-only   skip the release build and the cold-start run
+#   --build-only   build the test binaries, run nothing (./test.sh builds first, then runs
+#                  the qemu suite beside the Python tests)
 #   --all-tests    also run the suites that drive the binary as a separate process
 #                  (cli_tests, service_tests: signals, files, sockets, the process's
 #                  exit status; the same on every ISA, and under qemu they take most of
@@ -21,12 +23,14 @@ cd "$(dirname "$0")/.."
 
 tests_only=""
 all_tests=""
+no_run=()
 wanted=()
 for arg in "$@"; do
     case "$arg" in
         --tests-only) tests_only=1 ;;
         --all-tests) all_tests=1 ;;
-        -h | --help) sed -n '2,20p' "$0"; exit 0 ;;
+        --build-only) no_run=(--no-run) ;;
+        -h | --help) sed -n '2,22p' "$0"; exit 0 ;;
         *) wanted+=("$arg") ;;
     esac
 done
@@ -103,7 +107,7 @@ for arch in "${wanted[@]}"; do
 
     if [ -n "$all_tests" ]; then
         echo "== $triple: test suite under ${QEMU[$arch]}"
-        cargo test --locked --target "$triple"
+        cargo test --locked --target "$triple" "${no_run[@]}"
     else
         suites=()
         for f in tests/*.rs; do
@@ -116,6 +120,10 @@ for arch in "${wanted[@]}"; do
         skips=()
         for t in "${ISA_INDEPENDENT[@]}"; do skips+=(--skip "$t"); done
         echo "== $triple: test suite under ${QEMU[$arch]} (library and $((${#suites[@]} / 2)) integration suites less the ${#ISA_INDEPENDENT[@]} tests of ISA_INDEPENDENT; --all-tests runs everything)"
-        cargo test --locked --target "$triple" --lib "${suites[@]}" -- "${skips[@]}"
+        if [ ${#no_run[@]} -gt 0 ]; then
+            cargo test --locked --target "$triple" --lib "${suites[@]}" --no-run
+        else
+            cargo test --locked --target "$triple" --lib "${suites[@]}" -- "${skips[@]}"
+        fi
     fi
 done

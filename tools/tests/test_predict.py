@@ -82,3 +82,23 @@ def test_tricons_sampler_draws_without_replacement_when_possible():
     again = sample_indices(300, 64, instance_rng(0, 3, 1))
     assert (idx == again).all()
     assert not (idx == sample_indices(300, 64, instance_rng(0, 3, 2))).all()
+
+
+def test_keypoint_rotation_recovers_a_similarity_transform():
+    """Exact case: keypoints that are a rotated, scaled, shifted copy of their NOCS
+    coordinates give back that rotation (a proper one, never a reflection)."""
+    from tricons_pose.predict import keypoint_rotation
+    from tricons_pose.rotation import rotation_matrix_from_6d
+
+    g = torch.Generator().manual_seed(5)
+    R = rotation_matrix_from_6d(torch.randn(4, 6, generator=g, dtype=torch.float64))
+    nocs = torch.rand(4, 32, 3, generator=g, dtype=torch.float64) - 0.5
+    scale = torch.tensor([0.1, 0.3, 1.0, 2.0], dtype=torch.float64).view(4, 1, 1)
+    t = torch.randn(4, 1, 3, generator=g, dtype=torch.float64)
+    pts = scale * nocs @ R.transpose(1, 2) + t
+    got = keypoint_rotation(nocs, pts)
+    assert torch.allclose(got, R, atol=1e-9)
+    assert torch.allclose(torch.linalg.det(got), torch.ones(4, dtype=torch.float64))
+    # a mirrored point set still yields a rotation (det +1), not the reflection
+    mirrored = pts * torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64)
+    assert torch.allclose(torch.linalg.det(keypoint_rotation(nocs, mirrored)), torch.ones(4, dtype=torch.float64))

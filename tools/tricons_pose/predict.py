@@ -45,7 +45,7 @@ def load_model(path: str | os.PathLike) -> tuple[TriConsPose, ModelConfig]:
 @torch.no_grad()
 def predict_recording(
     model: TriConsPose, cfg: ModelConfig, data: str | os.PathLike, batch_size: int = 32, seed: int = 0,
-    cache_dir: str | os.PathLike | None = None, sampler: str = "numpy",
+    cache_dir: str | os.PathLike | None = None, sampler: str = "numpy", rotation: str = "head",
 ) -> list[dict]:
     """Predictions for every frame of recording ``data``, in frame order.
 
@@ -56,7 +56,15 @@ def predict_recording(
 
     ``cache_dir`` keeps the decoded, cropped instances (as in training) so that
     evaluating several checkpoints on one recording decodes its PNGs once.
+
+    ``rotation="head"`` reports the pose head's rotation (what the exported graph
+    computes); ``rotation="keypoints"`` replaces it by the least-squares rotation
+    between the keypoints' predicted NOCS coordinates and their camera-frame
+    positions (:func:`keypoint_rotation`, an experiment of tools/MODEL.md: it
+    tells whether the NOCS head or the pose head limits the rotation).
     """
+    if rotation not in ("head", "keypoints"):
+        raise ValueError(f"unknown rotation source {rotation!r} (head or keypoints)")
     ds = InstanceDataset([data], n_points=cfg.n_points, crop_size=cfg.crop_size, seed=seed, augment=None,
                          cache_dir=cache_dir)
     rec = ds.recordings[0]
@@ -72,6 +80,8 @@ def predict_recording(
                    for i in idx]
         inputs = {k: torch.stack([s[k] for s in samples]) for k in ("rgb", "pts", "choose")}
         out = model(inputs)
+        if rotation == "keypoints":
+            out["R"] = keypoint_rotation(out["kpt_nocs"], out["kpt_3d"])
         for b, i in enumerate(idx):
             ref = ds.index[i]
             inst = ds._anns[(ref.rec, ref.frame)][ref.pos]
@@ -88,6 +98,19 @@ def predict_recording(
         {"frame": fr.id, "timestamp_s": fr.timestamp_s, "instances": per_frame.get(fi, [])}
         for fi, fr in enumerate(rec.frames)
     ]
+
+
+def keypoint_rotation(kpt_nocs: torch.Tensor, kpt_3d: torch.Tensor) -> torch.Tensor:
+    """(B, M, 3) NOCS coordinates and (B, M, 3) camera-frame keypoints -> (B, 3, 3)
+    rotations R minimising sum |R s n_i + t - p_i|^2 over R, s, t (Umeyama 1991,
+    with the reflection fix: det R = +1)."""
+    n = kpt_nocs.double() - kpt_nocs.double().mean(dim=1, keepdim=True)
+    q = kpt_3d.double() - kpt_3d.double().mean(dim=1, keepdim=True)
+    cov = q.transpose(1, 2) @ n  # (B, 3, 3): sum_i q_i n_i^T
+    U, _, Vh = torch.linalg.svd(cov)
+    d = torch.sign(torch.linalg.det(U @ Vh))
+    D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
+    return (U @ D @ Vh).to(kpt_3d.dtype)
 
 
 def _rng(ds: InstanceDataset, i: int, seed: int, sampler: str):
@@ -121,11 +144,15 @@ def main(argv: list[str] | None = None) -> None:
                    help="point sampling: numpy (as in training) or tricons (the points tricons replay draws)")
     p.add_argument("--cache-dir", help="cache of decoded instances (speeds up repeated evaluations)")
     p.add_argument("--threads", type=int, default=0, help="torch.set_num_threads (0: all cores)")
+    p.add_argument("--rotation", choices=("head", "keypoints"), default="head",
+                   help="rotation from the pose head (the exported graph) or solved from the keypoints' "
+                        "predicted NOCS coordinates (an experiment, tools/MODEL.md)")
     args = p.parse_args(argv)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     model, cfg = load_model(args.checkpoint)
-    frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed, args.cache_dir, args.sampler)
+    frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed, args.cache_dir, args.sampler,
+                                args.rotation)
     write_jsonl(args.out, frames)
     n = sum(len(f["instances"]) for f in frames)
     print(f"{n} instances in {len(frames)} frames -> {args.out}")
