@@ -301,3 +301,55 @@ fn batch_norm_folding_matches_the_unfolded_graph() {
         assert!(worst <= 1e-5 * scale, "output {k}: max difference {worst} at scale {scale}");
     }
 }
+
+/// The angle between two rotations, degrees (well conditioned near zero).
+fn angle_deg(a: &tricons::geometry::Mat3, b: &tricons::geometry::Mat3) -> f64 {
+    (2.0 * ((a - b).norm() / 8f64.sqrt()).min(1.0).asin()).to_degrees()
+}
+
+#[test]
+fn rotation_from_keypoints_follows_the_card_and_matches_pytorch() {
+    let dir = tempfile::tempdir().unwrap();
+    let card = copy_model(dir.path());
+    edit_card(&card, |v| v["rotation_from_keypoints"] = serde_json::json!(["bottle", "mug"]));
+    let est = PoseEstimator::load(&card).unwrap();
+    let all = cases("pose_net");
+    let out = est.run_inputs(&fixture_inputs(&all)).unwrap();
+    for (c, o) in all.iter().zip(out) {
+        let e = o.expect("estimated");
+        // the graph's kpt_nocs output against PyTorch's
+        let want_nocs = c.get("kpt_nocs").f32();
+        let got_nocs: Vec<f32> = e.keypoints_nocs.iter().flatten().copied().collect();
+        assert_eq!(got_nocs.len(), want_nocs.len());
+        assert!(got_nocs.iter().zip(want_nocs).all(|(g, w)| (g - w).abs() < 1e-3));
+        // the Umeyama rotation against the reference's (torch.linalg.svd, float64)
+        let r_kpt = c.get("R_kpt").f32();
+        let want = tricons::geometry::Mat3::from_row_slice(&r_kpt.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let fit = e.keypoint_rotation().expect("a non-degenerate keypoint spread");
+        assert!(angle_deg(&fit, &want) < 0.1, "{} deg", angle_deg(&fit, &want));
+        for class in tricons::Category::ALL {
+            let pose = est.camera_from_object(&e, class);
+            assert_eq!(pose.translation_m, e.camera_from_object.translation_m);
+            let listed = matches!(class, tricons::Category::Bottle | tricons::Category::Mug);
+            assert_eq!(pose.rotation, if listed { fit } else { e.camera_from_object.rotation }, "{class:?}");
+        }
+    }
+
+    // bad cards: an unknown class names the field; the list needs the keypoint outputs
+    edit_card(&card, |v| v["rotation_from_keypoints"] = serde_json::json!(["cup"]));
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("rotation_from_keypoints") && err.contains("tricons-pose.card.json"), "{err}");
+    edit_card(&card, |v| {
+        v["rotation_from_keypoints"] = serde_json::json!(["mug"]);
+        v["outputs"].as_array_mut().unwrap().truncate(3);
+    });
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("rotation_from_keypoints") && err.contains("kpt_nocs"), "{err}");
+    // fewer than three outputs is an error, not a panic
+    edit_card(&card, |v| {
+        v["rotation_from_keypoints"] = serde_json::json!([]);
+        v["outputs"].as_array_mut().unwrap().truncate(1);
+    });
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("outputs"), "{err}");
+}

@@ -15,10 +15,14 @@
 //! (`http_slow_clients_dropped`).
 //!
 //! Hostile clients are bounded too: a request head must arrive whole within
-//! [`REQUEST_TIMEOUT`] (else 408, `http_request_timeouts`); `/stream` clients take at
+//! [`REQUEST_TIMEOUT`] (else 408, `http_request_timeouts`); at most [`MAX_PENDING`]
+//! connections wait for their heads, and a new connection closes the oldest waiting one
+//! beyond that (`http_idle_evicted`), so idle clients never keep a request from being
+//! read; a slot is taken only once a request has arrived; `/stream` clients take at
 //! most [`MAX_STREAM_CLIENTS`] of the [`MAX_CONNECTIONS`] slots, so the rest stay free
-//! for `/health` and `/metrics` (over the limits: 429 with `Retry-After`,
-//! `http_rejected`, never 503, which means "source reconnecting"). The accept loop
+//! for `/health` and `/metrics` (over the limits: 429 with `Retry-After`, sent after
+//! the request was read, `http_rejected`; never 503, which means "source
+//! reconnecting"). The accept loop
 //! blocks in `accept` (an idle `/health` answers at once) and shutdown wakes it; every
 //! connection thread ends within [`WRITE_TIMEOUT`] of shutdown, whatever its client does.
 
@@ -42,6 +46,8 @@ pub const STREAM_CLIENT_QUEUE: usize = 64;
 pub const MAX_CONNECTIONS: usize = 32;
 /// Most `/stream` clients at once (the other slots stay free for short requests).
 pub const MAX_STREAM_CLIENTS: usize = MAX_CONNECTIONS / 2;
+/// Most connections waiting for their request head; a newer one closes the oldest.
+pub const MAX_PENDING: usize = 16;
 /// How long a client may take to send its whole request head.
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long one write to a client may block before the client is disconnected.
@@ -209,36 +215,94 @@ fn take_slot(counter: &AtomicUsize, max: usize) -> Option<SlotGuard<'_>> {
     Some(SlotGuard(counter))
 }
 
+/// Connections that have not sent their request head yet, oldest first. At most
+/// [`MAX_PENDING`]: a new connection closes the oldest one beyond that, so idle clients
+/// can hold at most that many threads and never keep a request from being read.
+struct Pending {
+    conns: Mutex<std::collections::VecDeque<(u64, TcpStream)>>,
+}
+
+impl Pending {
+    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::VecDeque<(u64, TcpStream)>> {
+        self.conns.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Registers connection `id` (a clone of its socket), closing the oldest pending
+    /// one when all [`MAX_PENDING`] places are taken (counted).
+    fn admit(&self, id: u64, conn: TcpStream, stats: &PipelineStats) {
+        let mut conns = self.lock();
+        if conns.len() >= MAX_PENDING
+            && let Some((_, oldest)) = conns.pop_front()
+        {
+            let _ = oldest.shutdown(std::net::Shutdown::Both);
+            stats.http_idle_evicted.fetch_add(1, Ordering::Relaxed);
+        }
+        conns.push_back((id, conn));
+    }
+
+    /// Removes `id`; false when it was evicted meanwhile.
+    fn finish(&self, id: u64) -> bool {
+        let mut conns = self.lock();
+        match conns.iter().position(|(i, _)| *i == id) {
+            Some(k) => {
+                conns.remove(k);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Closes every pending connection (shutdown: nobody waits for their heads).
+    fn close_all(&self) {
+        for (_, conn) in self.lock().drain(..) {
+            let _ = conn.shutdown(std::net::Shutdown::Both);
+        }
+    }
+}
+
+/// What every connection thread shares.
+struct Shared {
+    stats: Arc<PipelineStats>,
+    hub: Arc<StreamHub>,
+    stop: Arc<AtomicBool>,
+    slots: Slots,
+    pending: Pending,
+}
+
 fn accept_loop(listener: TcpListener, stats: Arc<PipelineStats>, hub: Arc<StreamHub>, stop: Arc<AtomicBool>) {
-    let slots = Arc::new(Slots { active: AtomicUsize::new(0), streams: AtomicUsize::new(0) });
+    let shared = Arc::new(Shared {
+        stats,
+        hub,
+        stop,
+        slots: Slots { active: AtomicUsize::new(0), streams: AtomicUsize::new(0) },
+        pending: Pending { conns: Mutex::new(std::collections::VecDeque::new()) },
+    });
     let mut handlers: Vec<JoinHandle<()>> = Vec::new();
+    let mut next_id = 0u64;
     loop {
         let accepted = listener.accept();
-        if stop.load(Ordering::SeqCst) {
+        if shared.stop.load(Ordering::SeqCst) {
             break;
         }
         match accepted {
-            Ok((mut stream, _)) => {
+            Ok((stream, _)) => {
                 handlers.retain(|h| !h.is_finished());
-                if slots.active.load(Ordering::SeqCst) >= MAX_CONNECTIONS {
-                    stats.http_rejected.fetch_add(1, Ordering::Relaxed);
-                    let _ = stream.set_write_timeout(Some(DRAIN_TIMEOUT));
-                    let _ = busy(&mut stream, "too many connections");
-                    continue;
-                }
-                slots.active.fetch_add(1, Ordering::SeqCst);
-                let (stats, hub, stop, conn_slots) =
-                    (Arc::clone(&stats), Arc::clone(&hub), Arc::clone(&stop), Arc::clone(&slots));
+                let Ok(registered) = stream.try_clone() else {
+                    continue; // out of descriptors: drop this one
+                };
+                next_id += 1;
+                let id = next_id;
+                shared.pending.admit(id, registered, &shared.stats);
+                let conn = Arc::clone(&shared);
                 let spawned = std::thread::Builder::new().name("http-conn".into()).spawn(move || {
-                    let _slot = SlotGuard(&conn_slots.active);
-                    if let Err(e) = handle(stream, &stats, &hub, &stop, &conn_slots.streams) {
+                    if let Err(e) = handle(stream, id, &conn) {
                         log::debug!("http: {e}");
                     }
                 });
                 match spawned {
                     Ok(h) => handlers.push(h),
                     Err(e) => {
-                        slots.active.fetch_sub(1, Ordering::SeqCst);
+                        shared.pending.finish(id);
                         log::warn!("http: cannot start a connection thread: {e}");
                     }
                 }
@@ -249,6 +313,7 @@ fn accept_loop(listener: TcpListener, stats: Arc<PipelineStats>, hub: Arc<Stream
             }
         }
     }
+    shared.pending.close_all();
     for h in handlers {
         let _ = h.join();
     }
@@ -420,18 +485,23 @@ fn send_line(stream: &mut TcpStream, line: &str, timeout: Duration, stats: &Pipe
     sent
 }
 
-fn handle(
-    mut stream: TcpStream,
-    stats: &PipelineStats,
-    hub: &StreamHub,
-    stop: &AtomicBool,
-    streams: &AtomicUsize,
-) -> std::io::Result<()> {
+fn handle(mut stream: TcpStream, id: u64, shared: &Shared) -> std::io::Result<()> {
+    let (stats, hub, stop) = (&*shared.stats, &*shared.hub, &*shared.stop);
     stream.set_write_timeout(Some(WRITE_TIMEOUT))?;
-    let Some(head) = read_head(&mut stream)? else {
+    let head = read_head(&mut stream);
+    if !shared.pending.finish(id) {
+        return Ok(()); // evicted by newer connections before it sent a request
+    }
+    let Some(head) = head? else {
         stats.http_request_timeouts.fetch_add(1, Ordering::Relaxed);
         return respond(&mut stream, 408, "text/plain", b"request head not received in time\n");
     };
+    // a slot is taken once there is a request to serve (idle clients never hold one)
+    let Some(_slot) = take_slot(&shared.slots.active, MAX_CONNECTIONS) else {
+        stats.http_rejected.fetch_add(1, Ordering::Relaxed);
+        return busy(&mut stream, "too many connections");
+    };
+    let streams = &shared.slots.streams;
     let route = match parse_request(&head) {
         Ok(route) => route,
         Err(BadRequest::TooLarge) => return respond(&mut stream, 400, "text/plain", b"request too large\n"),

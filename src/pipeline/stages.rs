@@ -129,7 +129,7 @@ pub fn estimate_detections(
             Ok(e) => instances.push(PredInstance {
                 class: d.class,
                 score: d.score,
-                camera_from_object: e.camera_from_object,
+                camera_from_object: estimator.camera_from_object(&e, d.class),
                 size_m: e.size_m,
                 box2d: d.box2d,
                 mask: None,

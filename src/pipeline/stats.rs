@@ -135,6 +135,9 @@ pub struct StatsSnapshot {
     pub http_rejected: u64,
     /// HTTP clients that did not send a request head in time.
     pub http_request_timeouts: u64,
+    /// HTTP connections closed unanswered because newer ones needed their place while
+    /// they had not sent a request (idle clients cannot take every slot).
+    pub http_idle_evicted: u64,
     /// Resident memory now, KiB (Linux; 0 elsewhere).
     pub rss_kib: u64,
     /// Peak resident memory of the process, KiB (Linux; 0 elsewhere).
@@ -201,6 +204,8 @@ pub struct PipelineStats {
     pub http_rejected: AtomicU64,
     /// HTTP request heads not received in time.
     pub http_request_timeouts: AtomicU64,
+    /// See [`StatsSnapshot::http_idle_evicted`].
+    pub http_idle_evicted: AtomicU64,
     warm_rss_kib: AtomicU64,
     queues: Mutex<Vec<(String, std::sync::Arc<dyn QueueProbe>)>>,
 }
@@ -229,6 +234,7 @@ impl PipelineStats {
             http_slow_clients_dropped: AtomicU64::new(0),
             http_rejected: AtomicU64::new(0),
             http_request_timeouts: AtomicU64::new(0),
+            http_idle_evicted: AtomicU64::new(0),
             warm_rss_kib: AtomicU64::new(0),
             queues: Mutex::new(Vec::new()),
         }
@@ -331,6 +337,7 @@ impl PipelineStats {
             http_slow_clients_dropped: self.http_slow_clients_dropped.load(Ordering::Relaxed),
             http_rejected: self.http_rejected.load(Ordering::Relaxed),
             http_request_timeouts: self.http_request_timeouts.load(Ordering::Relaxed),
+            http_idle_evicted: self.http_idle_evicted.load(Ordering::Relaxed),
             rss_kib,
             peak_rss_kib,
             warm_rss_kib: self.warm_rss_kib.load(Ordering::Relaxed),
@@ -381,6 +388,11 @@ impl StatsSnapshot {
             ),
             ("http_rejected_total", self.http_rejected, "HTTP connections refused because the slots were taken."),
             ("http_request_timeouts_total", self.http_request_timeouts, "HTTP clients that sent no request in time."),
+            (
+                "http_idle_evicted_total",
+                self.http_idle_evicted,
+                "Idle HTTP connections closed to make room for newer ones.",
+            ),
         ] {
             metric(name, help, "counter", vec![(String::new(), v as f64)]);
         }

@@ -40,6 +40,12 @@ pub struct ModelCard {
     /// SynthNOCS-test metrics by IoU mode, when measured.
     #[serde(default)]
     pub metrics: serde_json::Value,
+    /// Classes whose rotation is solved from the keypoints instead of taken from the pose
+    /// head: the least-squares similarity (Umeyama) between the keypoints' predicted NOCS
+    /// coordinates (`kpt_nocs`) and their camera-frame positions (`kpt_3d`). Chosen per
+    /// class on SynthNOCS-val (tools/MODEL.md); empty (the default) keeps the head's.
+    #[serde(default)]
+    pub rotation_from_keypoints: Vec<crate::category::Category>,
 }
 
 /// The graph file of a card.
@@ -92,8 +98,16 @@ impl ModelCard {
         if names(&card.inputs) != ["rgb", "pts", "choose"] {
             return bad(format!("field `inputs`: expected rgb, pts, choose, found {:?}", names(&card.inputs)));
         }
-        if names(&card.outputs)[..3] != ["R", "t", "s"] {
-            return bad(format!("field `outputs`: expected R, t, s first, found {:?}", names(&card.outputs)));
+        let outputs = names(&card.outputs);
+        if outputs.get(..3) != Some(&["R", "t", "s"].map(String::from)[..]) {
+            return bad(format!("field `outputs`: expected R, t, s first, found {outputs:?}"));
+        }
+        if !card.rotation_from_keypoints.is_empty()
+            && outputs.get(3..5) != Some(&["kpt_3d", "kpt_nocs"].map(String::from)[..])
+        {
+            return bad(format!(
+                "field `rotation_from_keypoints`: needs the outputs kpt_3d, kpt_nocs after R, t, s, found {outputs:?}"
+            ));
         }
         let (p, rgb_scale) = (&card.preprocessing.config, card.preprocessing.rgb_scale);
         if p.n_points == 0 || p.crop_size == 0 || p.crop_step_px == 0 || p.max_crop_px < p.crop_step_px {

@@ -24,6 +24,21 @@ pub struct PoseEstimate {
     pub size_m: [f64; 3],
     /// The M keypoints in the camera frame, metres.
     pub keypoints_camera_m: Vec<[f32; 3]>,
+    /// The keypoints' predicted NOCS coordinates (object frame over the box diagonal), when
+    /// the graph outputs them (`kpt_nocs`); empty otherwise.
+    pub keypoints_nocs: Vec<[f32; 3]>,
+}
+
+impl PoseEstimate {
+    /// The rotation of the least-squares similarity from the keypoints' NOCS coordinates
+    /// to their camera-frame positions (Umeyama), `None` without NOCS outputs or for a
+    /// degenerate keypoint spread.
+    pub fn keypoint_rotation(&self) -> Option<Mat3> {
+        let f = |p: &[f32; 3]| Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        let nocs: Vec<Vec3> = self.keypoints_nocs.iter().map(f).collect();
+        let camera: Vec<Vec3> = self.keypoints_camera_m.iter().map(f).collect();
+        crate::geometry::fit_similarity(&nocs, &camera).map(|fit| fit.pose.rotation)
+    }
 }
 
 /// Why an instance got no estimate.
@@ -211,6 +226,17 @@ impl PoseEstimator {
         &self.card
     }
 
+    /// The pose to report for an instance of `class`: the head's rotation, or for the
+    /// card's `rotation_from_keypoints` classes the one solved from the keypoints (the
+    /// head's when that fit is degenerate); translation always the head's.
+    pub fn camera_from_object(&self, estimate: &PoseEstimate, class: crate::category::Category) -> Pose {
+        let head = estimate.camera_from_object;
+        if !self.card.rotation_from_keypoints.contains(&class) {
+            return head;
+        }
+        estimate.keypoint_rotation().map_or(head, |rotation| Pose::new(rotation, head.translation_m))
+    }
+
     /// Where the card was read from.
     pub fn card_path(&self) -> &Path {
         &self.card_path
@@ -350,9 +376,17 @@ fn decode_outputs(out: &TVec<TValue>, b: usize) -> Result<Vec<InstanceOutcome>> 
             .map_err(tensor_err)
     };
     let (r, t, sz, kpt) = (slice(0)?, slice(1)?, slice(2)?, slice(3)?);
+    // kpt_nocs, when the graph has it (the same length as kpt_3d)
+    let nocs = if out.len() > 4 { slice(4)? } else { &[] };
     let m = kpt.len() / b;
+    if !nocs.is_empty() && nocs.len() != kpt.len() {
+        return Err(Error::Inference(format!("kpt_nocs has {} values, kpt_3d {}", nocs.len(), kpt.len())));
+    }
     Ok((0..b)
-        .map(|j| decode(&r[9 * j..9 * j + 9], &t[3 * j..3 * j + 3], &sz[3 * j..3 * j + 3], &kpt[m * j..m * (j + 1)]))
+        .map(|j| {
+            let kn = if nocs.is_empty() { &[][..] } else { &nocs[m * j..m * (j + 1)] };
+            decode(&r[9 * j..9 * j + 9], &t[3 * j..3 * j + 3], &sz[3 * j..3 * j + 3], &kpt[m * j..m * (j + 1)], kn)
+        })
         .collect())
 }
 
@@ -396,8 +430,8 @@ fn check_inputs(proto: &ModelProto, cfg: &PreprocessConfig) -> std::result::Resu
     Ok(())
 }
 
-fn decode(r: &[f32], t: &[f32], s: &[f32], kpt: &[f32]) -> InstanceOutcome {
-    if r.iter().chain(t).chain(s).chain(kpt).any(|v| !v.is_finite()) {
+fn decode(r: &[f32], t: &[f32], s: &[f32], kpt: &[f32], kpt_nocs: &[f32]) -> InstanceOutcome {
+    if r.iter().chain(t).chain(s).chain(kpt).chain(kpt_nocs).any(|v| !v.is_finite()) {
         return Err(Skipped::NonFiniteOutput);
     }
     let m = Mat3::from_row_slice(&r.iter().map(|&v| v as f64).collect::<Vec<_>>());
@@ -405,6 +439,7 @@ fn decode(r: &[f32], t: &[f32], s: &[f32], kpt: &[f32]) -> InstanceOutcome {
         camera_from_object: Pose::new(orthonormalise(&m), Vec3::new(t[0] as f64, t[1] as f64, t[2] as f64)),
         size_m: [s[0] as f64, s[1] as f64, s[2] as f64],
         keypoints_camera_m: kpt.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect(),
+        keypoints_nocs: kpt_nocs.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect(),
     })
 }
 

@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tricons_pose.onnx_export_ops import run_node  # noqa: E402
 from tricons_pose.data import InstanceDataset, backproject, normalise_rgb, remap_choose, resize_bilinear  # noqa: E402
+from tricons_pose.predict import keypoint_rotation  # noqa: E402
 
 DEMO_FRAMES = (0, 2, 3, 5)
 FORMAT = "tricons-fixture"
@@ -185,7 +186,10 @@ def make_net(checkpoint: Path, onnx_path: Path, recording: Path, out: Path, per_
                         "(choose_all) of the instance's crop window",
                 "tolerance": {"rotation_deg": 0.1, "t_m": 0.001, "s_m": 0.001, "keypoints_m": 0.001,
                               "inputs_float_abs": 1e-6}}
-        outputs = {"R": y["R"], "t": y["t"], "s": y["s"], "kpt_3d": y["kpt_3d"], "kpt_nocs": y["kpt_nocs"]}
+        outputs = {"R": y["R"], "t": y["t"], "s": y["s"], "kpt_3d": y["kpt_3d"], "kpt_nocs": y["kpt_nocs"],
+                   # the rotation a card's rotation_from_keypoints reports (Umeyama in float64, stored as float32)
+                   "R_kpt": keypoint_rotation(torch.from_numpy(y["kpt_nocs"])[None].double(),
+                                              torch.from_numpy(y["kpt_3d"])[None].double())[0].float().numpy()}
         _save_case(out, name, meta, {"sample_idx": sample_idx, "rgb": x["rgb"].numpy(), "pts": x["pts"].numpy(),
                                      "choose": x["choose"].numpy()}, outputs)
         names.append(name)

@@ -4,6 +4,7 @@ import json
 import subprocess
 
 import numpy as np
+import pytest
 import torch
 
 from tricons_pose.config import ModelConfig
@@ -102,3 +103,31 @@ def test_keypoint_rotation_recovers_a_similarity_transform():
     # a mirrored point set still yields a rotation (det +1), not the reflection
     mirrored = pts * torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64)
     assert torch.allclose(torch.linalg.det(keypoint_rotation(nocs, mirrored)), torch.ones(4, dtype=torch.float64))
+
+
+def test_rotation_from_keypoints_replaces_only_the_listed_classes(recording):
+    """The listed classes get the keypoint fit's rotation, every other field and class
+    stays the head's; an unknown class name is refused."""
+    from tricons_pose.predict import parse_classes
+
+    torch.manual_seed(0)
+    cfg = tiny_config()
+    model = TriConsPose(cfg).eval()
+    head = predict_recording(model, cfg, recording, batch_size=4)
+    classes = {i["class"] for f in head for i in f["instances"]}
+    chosen = sorted(classes)[:1]
+    mixed = predict_recording(model, cfg, recording, batch_size=4, rotation_from_keypoints=chosen)
+    every = predict_recording(model, cfg, recording, batch_size=4, rotation_from_keypoints=parse_classes("all"))
+    changed = 0
+    for fh, fm, fe in zip(head, mixed, every):
+        for h, m, e in zip(fh["instances"], fm["instances"], fe["instances"]):
+            assert m["t"] == h["t"] and m["s"] == h["s"] and e["t"] == h["t"]
+            if h["class"] in chosen:
+                assert m["R"] == e["R"]
+                changed += m["R"] != h["R"]
+            else:
+                assert m["R"] == h["R"]
+    assert changed > 0
+    assert parse_classes("bottle, mug") == ("bottle", "mug") and parse_classes("") == ()
+    with pytest.raises(ValueError, match="unknown classes"):
+        predict_recording(model, cfg, recording, rotation_from_keypoints=("cup",))

@@ -210,8 +210,11 @@ def standard_op_types(onnx_bytes: bytes) -> list[str]:
 
 
 def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dict, check: dict | None,
-               metrics: Dict[str, dict], n_params: int) -> dict:
+               metrics: Dict[str, dict], n_params: int, rotation_from_keypoints: Sequence[str] = ()) -> dict:
     """The model card (docs/formats.md, "Model card")."""
+    unknown = sorted(set(rotation_from_keypoints) - set(CLASSES))
+    if unknown:
+        raise ValueError(f"rotation_from_keypoints: unknown classes {unknown} (known: {CLASSES})")
     crop, n, m = cfg.crop_size, cfg.n_points, cfg.n_keypoints
     return {
         "format": CARD_FORMAT,
@@ -257,6 +260,7 @@ def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dic
             "sampling": "n_points of the valid pixels, with replacement only when fewer",
         },
         "categories": list(CLASSES),
+        "rotation_from_keypoints": [c for c in CLASSES if c in set(rotation_from_keypoints)],
         "n_keypoints": m,
         "parameters": n_params,
         "config": cfg.to_dict(),
@@ -319,6 +323,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--no-check", action="store_true", help="skip the reference-evaluator comparison")
     p.add_argument("--standard-ops", action="store_true",
                    help="standard ONNX ops in place of the ai.tricons nodes (for onnxruntime; FPS unrolled)")
+    p.add_argument("--rotation-from-keypoints", default="", metavar="CLASSES",
+                   help="comma-separated classes (or 'all') whose rotation the runtime solves from the keypoints' "
+                        "NOCS coordinates instead of taking the pose head's (card field; tools/MODEL.md)")
     args = p.parse_args(argv)
 
     if args.config is not None:
@@ -341,7 +348,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_params = sum(t.numel() for t in model.parameters())
-    card = build_card(cfg, out.name, onnx_bytes, weights, check, metrics, n_params)
+    from .predict import parse_classes
+
+    card = build_card(cfg, out.name, onnx_bytes, weights, check, metrics, n_params,
+                      parse_classes(args.rotation_from_keypoints))
     write_atomic(out, onnx_bytes)
     write_atomic(card_path(out), (json.dumps(card, indent=2) + "\n").encode("utf-8"))
     msg = f"{out} ({len(onnx_bytes) / 1e6:.2f} MB, {n_params} parameters) + {card_path(out).name}"

@@ -18,12 +18,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from .config import ModelConfig
+from .recording import CLASSES
 from .data import InstanceDataset, make_sample
 from .model import TriConsPose
 from .tricons_rng import instance_rng
@@ -45,7 +47,8 @@ def load_model(path: str | os.PathLike) -> tuple[TriConsPose, ModelConfig]:
 @torch.no_grad()
 def predict_recording(
     model: TriConsPose, cfg: ModelConfig, data: str | os.PathLike, batch_size: int = 32, seed: int = 0,
-    cache_dir: str | os.PathLike | None = None, sampler: str = "numpy", rotation: str = "head",
+    cache_dir: str | os.PathLike | None = None, sampler: str = "numpy",
+    rotation_from_keypoints: Collection[str] = (),
 ) -> list[dict]:
     """Predictions for every frame of recording ``data``, in frame order.
 
@@ -57,14 +60,14 @@ def predict_recording(
     ``cache_dir`` keeps the decoded, cropped instances (as in training) so that
     evaluating several checkpoints on one recording decodes its PNGs once.
 
-    ``rotation="head"`` reports the pose head's rotation (what the exported graph
-    computes); ``rotation="keypoints"`` replaces it by the least-squares rotation
-    between the keypoints' predicted NOCS coordinates and their camera-frame
-    positions (:func:`keypoint_rotation`, an experiment of tools/MODEL.md: it
-    tells whether the NOCS head or the pose head limits the rotation).
+    Instances of the classes in ``rotation_from_keypoints`` report the least-squares
+    rotation between the keypoints' predicted NOCS coordinates and their camera-frame
+    positions (:func:`keypoint_rotation`) instead of the pose head's, as the runtime does
+    for the classes its model card lists (``rotation_from_keypoints``, tools/MODEL.md).
     """
-    if rotation not in ("head", "keypoints"):
-        raise ValueError(f"unknown rotation source {rotation!r} (head or keypoints)")
+    unknown = set(rotation_from_keypoints) - set(CLASSES)
+    if unknown:
+        raise ValueError(f"rotation_from_keypoints: unknown classes {sorted(unknown)} (known: {CLASSES})")
     ds = InstanceDataset([data], n_points=cfg.n_points, crop_size=cfg.crop_size, seed=seed, augment=None,
                          cache_dir=cache_dir)
     rec = ds.recordings[0]
@@ -80,8 +83,7 @@ def predict_recording(
                    for i in idx]
         inputs = {k: torch.stack([s[k] for s in samples]) for k in ("rgb", "pts", "choose")}
         out = model(inputs)
-        if rotation == "keypoints":
-            out["R"] = keypoint_rotation(out["kpt_nocs"], out["kpt_3d"])
+        R_kpt = keypoint_rotation(out["kpt_nocs"], out["kpt_3d"]) if rotation_from_keypoints else None
         for b, i in enumerate(idx):
             ref = ds.index[i]
             inst = ds._anns[(ref.rec, ref.frame)][ref.pos]
@@ -89,7 +91,7 @@ def predict_recording(
                 {
                     "class": inst.cls,
                     "score": 1.0,
-                    "R": out["R"][b].double().tolist(),
+                    "R": (R_kpt if inst.cls in rotation_from_keypoints else out["R"])[b].double().tolist(),
                     "t": out["t"][b].double().tolist(),
                     "s": out["s"][b].double().tolist(),
                 }
@@ -111,6 +113,13 @@ def keypoint_rotation(kpt_nocs: torch.Tensor, kpt_3d: torch.Tensor) -> torch.Ten
     d = torch.sign(torch.linalg.det(U @ Vh))
     D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
     return (U @ D @ Vh).to(kpt_3d.dtype)
+
+
+def parse_classes(text: str) -> tuple[str, ...]:
+    """``"bottle,mug"`` -> ``("bottle", "mug")``; ``"all"`` -> every category; ``""`` -> none."""
+    if text.strip() == "all":
+        return tuple(CLASSES)
+    return tuple(c.strip() for c in text.split(",") if c.strip())
 
 
 def _rng(ds: InstanceDataset, i: int, seed: int, sampler: str):
@@ -144,15 +153,16 @@ def main(argv: list[str] | None = None) -> None:
                    help="point sampling: numpy (as in training) or tricons (the points tricons replay draws)")
     p.add_argument("--cache-dir", help="cache of decoded instances (speeds up repeated evaluations)")
     p.add_argument("--threads", type=int, default=0, help="torch.set_num_threads (0: all cores)")
-    p.add_argument("--rotation", choices=("head", "keypoints"), default="head",
-                   help="rotation from the pose head (the exported graph) or solved from the keypoints' "
-                        "predicted NOCS coordinates (an experiment, tools/MODEL.md)")
+    p.add_argument("--rotation-from-keypoints", default="", metavar="CLASSES",
+                   help="comma-separated classes (or 'all') whose rotation is solved from the keypoints' "
+                        "predicted NOCS coordinates instead of taken from the pose head (the model card's "
+                        "rotation_from_keypoints; tools/MODEL.md)")
     args = p.parse_args(argv)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     model, cfg = load_model(args.checkpoint)
     frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed, args.cache_dir, args.sampler,
-                                args.rotation)
+                                parse_classes(args.rotation_from_keypoints))
     write_jsonl(args.out, frames)
     n = sum(len(f["instances"]) for f in frames)
     print(f"{n} instances in {len(frames)} frames -> {args.out}")

@@ -259,7 +259,7 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
             }
             outcomes.push(out);
         }
-        let to_preds = |out: &[InstanceOutcome]| -> Vec<PredInstance> {
+        let to_preds = |model: &PoseEstimator, out: &[InstanceOutcome]| -> Vec<PredInstance> {
             let mut it = out.iter();
             prepared
                 .slots
@@ -273,7 +273,7 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
                     Some(PredInstance {
                         class: g.class,
                         score: 1.0,
-                        camera_from_object: e.camera_from_object,
+                        camera_from_object: model.camera_from_object(e, g.class),
                         size_m: e.size_m,
                         box2d: None,
                         mask: None,
@@ -299,8 +299,8 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
                 acc[3].add(&k(a), &k(b));
             }
         }
-        preds_f.push(to_preds(&outcomes[0]));
-        preds_q.push(to_preds(&outcomes[1]));
+        preds_f.push(to_preds(&float, &outcomes[0]));
+        preds_q.push(to_preds(&int8, &outcomes[1]));
         gts.push(gt);
         bar.inc(1);
     }
