@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from .nocs_layout import open_any
 from .recording import CLASSES, Instance, Intrinsics, Recording, RecordingError
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -406,7 +407,8 @@ class InstanceDataset(Dataset):
         cache: bool = True,
         cache_dir: str | os.PathLike | None = None,
     ):
-        self.recordings = [r if isinstance(r, Recording) else Recording(r) for r in recordings]
+        # tricons recordings, NOCS scenes, or NOCS split directories (one recording per scene)
+        self.recordings = [rec for r in recordings for rec in open_any(r)]
         self.n_points = n_points
         self.crop_size = crop_size
         self.seed = seed

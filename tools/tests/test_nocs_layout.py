@@ -1,0 +1,134 @@
+"""nocs_layout.py: SynthNOCS written in the NOCS dataset layout reads back as the same
+ground truth, trains, predicts, and replays through the runtime's NOCS-layout reader."""
+
+import json
+import pickle
+import subprocess
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import REPO
+from tricons_pose.config import ModelConfig
+from tricons_pose.data import InstanceDataset
+from tricons_pose.model import TriConsPose
+from tricons_pose.nocs_layout import (MASK_BACKGROUND, NocsLayoutRecording, is_nocs_layout, open_any, scene_dirs,
+                                      write_nocs_layout)
+from tricons_pose.predict import predict_recording, write_jsonl
+from tricons_pose.recording import Recording, RecordingError
+
+
+@pytest.fixture(scope="module")
+def layout(recording, tmp_path_factory):
+    root = tmp_path_factory.mktemp("nocs") / "NOCS"
+    scene = write_nocs_layout(recording, root, split="real_test", scene="scene_1")
+    return root, scene
+
+
+def test_files_follow_the_dataset_conventions(recording, layout):
+    root, scene = layout
+    rec = Recording(recording)
+    assert scene == root / "Real" / "test" / "scene_1"
+    assert sorted(p.name for p in scene.glob("*_color.png")) == [f"{i:04d}_color.png" for i in range(len(rec))]
+    for i in range(len(rec)):
+        ann = rec.annotations(i)
+        nid = f"{i:04d}"
+        meta = [ln.split() for ln in (scene / f"{nid}_meta.txt").read_text().splitlines()]
+        assert [(int(a), int(b)) for a, b, _ in meta] == [(x.id, x.class_id + 1) for x in ann.instances]
+        from PIL import Image
+        mask = np.asarray(Image.open(scene / f"{nid}_mask.png"))
+        label = rec.mask(i, ann)
+        assert np.array_equal(mask == MASK_BACKGROUND, label == 0)
+        coord = np.asarray(Image.open(scene / f"{nid}_coord.png")).astype(np.float64) / 255.0
+        # the NOCS repository's load_coord: z = 1 - stored z
+        coord[..., 2] = 1.0 - coord[..., 2]
+        fg = label > 0
+        assert np.abs(coord[fg] - rec.nocs(i, ann)[fg]).max() <= 0.5 / 255 + 1e-6
+        with open(root / "gts" / "real_test" / f"results_real_test_scene_1_{nid}.pkl", "rb") as f:
+            gt = pickle.load(f)
+        for k, inst in enumerate(ann.instances):
+            RT = gt["gt_RTs"][k]
+            scale = np.cbrt(np.linalg.det(RT[:3, :3]))
+            assert np.allclose(RT[:3, :3] / scale, inst.R, atol=1e-12)
+            assert np.allclose(RT[:3, 3], inst.t, atol=1e-12)
+            assert np.allclose(scale * gt["gt_scales"][k], inst.s, atol=1e-12)
+            assert np.isclose(np.linalg.norm(gt["gt_scales"][k]), 1.0)
+        with open(root / "segmentation_results" / "real_test" / f"results_test_scene_1_{nid}.pkl", "rb") as f:
+            seg = pickle.load(f)
+        assert seg["pred_masks"].shape == label.shape + (len(ann.instances),)
+        for k, inst in enumerate(ann.instances):
+            assert np.array_equal(seg["pred_masks"][..., k], label == inst.id)
+            y1, x1, y2, x2 = seg["pred_bboxes"][k]
+            ys, xs = np.nonzero(label == inst.id)
+            assert (y1, x1, y2, x2) == (ys.min(), xs.min(), ys.max() + 1, xs.max() + 1)
+        assert list(seg["pred_class_ids"]) == [x.class_id + 1 for x in ann.instances]
+
+
+def test_the_reader_gives_back_the_recording(recording, layout):
+    root, scene = layout
+    rec, nl = Recording(recording), NocsLayoutRecording(scene)
+    assert is_nocs_layout(scene) and is_nocs_layout(scene.parent) and not is_nocs_layout(recording)
+    assert scene_dirs(scene.parent) == [scene]
+    assert len(nl) == len(rec) and nl.intrinsics == rec.intrinsics
+    for i in range(len(rec)):
+        a, b = rec.annotations(i), nl.annotations(i)
+        assert np.array_equal(nl.color(i), rec.color(i))
+        assert np.array_equal(nl.depth_m(i), rec.depth_m(i))
+        assert np.array_equal(nl.mask(i, b), rec.mask(i, a))
+        fg = rec.mask(i, a) > 0
+        assert np.abs(nl.nocs(i, b)[fg] - rec.nocs(i, a)[fg]).max() <= 0.5 / 255 + 1e-6
+        assert [(x.id, x.cls, x.handle_visible) for x in b.instances] == \
+            [(x.id, x.cls, x.cls != "mug" or x.handle_visible) for x in a.instances]
+        for x, y in zip(a.instances, b.instances):
+            # float32 in the label pickle, as SPD writes it
+            assert np.allclose(y.R, x.R, atol=1e-6) and np.allclose(y.t, x.t, atol=1e-6)
+            assert np.allclose(y.s, x.s, rtol=1e-6)
+
+
+def test_a_layout_trains_predicts_and_replays(recording, layout, tricons_bin, tmp_path):
+    root, scene = layout
+    cfg = ModelConfig.shipped().replace(n_points=256, n_keypoints=8, crop_size=32)
+    ds_rec, ds_nl = InstanceDataset([recording], n_points=256, crop_size=32), InstanceDataset([scene.parent], n_points=256,
+                                                                                             crop_size=32)
+    assert len(ds_nl) == len(ds_rec) > 0
+    # a training step on NOCS-layout samples
+    torch.manual_seed(0)
+    model = TriConsPose(cfg)
+    loader = torch.utils.data.DataLoader(ds_nl, batch_size=2, shuffle=False)
+    batch = next(iter(loader))
+    out = model({k: batch[k] for k in ("rgb", "pts", "choose")})
+    assert torch.isfinite(out["R"]).all()
+    # predictions on the layout are frame for frame those on the recording (same samples)
+    model.eval()
+    pa = predict_recording(model, cfg, recording, batch_size=4)
+    pb = predict_recording(model, cfg, scene, batch_size=4)
+    assert [len(f["instances"]) for f in pa] == [len(f["instances"]) for f in pb]
+    for fa, fb in zip(pa, pb):
+        for x, y in zip(fa["instances"], fb["instances"]):
+            assert x["class"] == y["class"]
+            assert np.allclose(x["t"], y["t"], atol=1e-3)
+    write_jsonl(tmp_path / "pred.jsonl", pb)
+    # the runtime reads the same scene (poses fitted from its NOCS maps) and replays it
+    res = subprocess.run([str(tricons_bin), "replay", "--recording", str(scene), "--masks", "gt", "--out",
+                          str(tmp_path / "replay.jsonl"), "--no-eval"], capture_output=True, text=True, cwd=REPO)
+    assert res.returncode == 0, res.stderr
+    lines = [json.loads(ln) for ln in (tmp_path / "replay.jsonl").read_text().splitlines()]
+    assert [ln["frame"] for ln in lines] == [f"{i:04d}" for i in range(len(pa))]
+    assert [len(ln["instances"]) for ln in lines] == [len(f["instances"]) for f in pb]
+
+
+def test_bad_layouts_are_clear_errors(recording, layout, tmp_path):
+    root, scene = layout
+    with pytest.raises(RecordingError, match="neither a NOCS scene"):
+        scene_dirs(tmp_path)
+    # sizes need the object models
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    for p in scene.glob("0000_*"):
+        (lone / p.name).write_bytes(p.read_bytes())
+    with pytest.raises(RecordingError, match="object models"):
+        NocsLayoutRecording(lone).annotations(0)
+    assert len(open_any(lone)) == 1
+    with pytest.raises(ValueError, match="split"):
+        write_nocs_layout(recording, tmp_path / "x", split="real_val")
