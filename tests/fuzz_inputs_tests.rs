@@ -27,6 +27,8 @@ mod png;
 mod predictions;
 #[path = "../fuzz/harness/quant_profile.rs"]
 mod quant_profile;
+#[path = "../fuzz/harness/segment_results.rs"]
+mod segment_results;
 #[path = "../fuzz/harness/segmenter_card.rs"]
 mod segmenter_card;
 #[path = "../fuzz/harness/v4l2_decode.rs"]
@@ -47,6 +49,7 @@ const HARNESSES: &[(&str, Harness)] = &[
     ("png", png::run),
     ("predictions", predictions::run),
     ("quant_profile", quant_profile::run),
+    ("segment_results", segment_results::run),
     ("segmenter_card", segmenter_card::run),
     ("v4l2_decode", v4l2_decode::run),
 ];

@@ -347,3 +347,37 @@ fn raised_score_floor_keeps_exactly_the_detections_above_the_threshold() {
         tricons::ops::onnx_with_custom_ops().proto_model_for_path(root.join("models/tricons-pose.onnx")).unwrap();
     assert_eq!(tricons::segment::rewrite::raise_score_floor(&mut pose, 0.5), Ok(None));
 }
+
+/// Result pickles written by Python's pickle (numpy arrays; protocols 2 and 4, a
+/// Fortran-ordered mask and big-endian ids; fuzz/seeds/segment_results/, made with the
+/// snippet in fuzz/README.md) read back exactly.
+#[test]
+fn published_result_pickles_written_by_python_read_exactly() {
+    use tricons::segment::published::PublishedDetections;
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds/segment_results");
+    let (w, h) = (8usize, 6usize);
+    let mut want0 = vec![false; w * h];
+    let mut want1 = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            want0[y * w + x] = (1..4).contains(&y) && (2..5).contains(&x);
+            want1[y * w + x] = (3..6).contains(&y) && (5..8).contains(&x);
+        }
+    }
+    for name in ["results_p2.pkl", "results_p4.pkl", "results_fortran_bigendian.pkl"] {
+        let d = PublishedDetections::read(&dir.join(name), w as u32, h as u32).unwrap();
+        assert_eq!(d.len(), 2, "{name}");
+        assert_eq!((d[0].class, d[1].class), (tricons::Category::Mug, tricons::Category::Bowl), "{name}");
+        assert_eq!((d[0].score as f32, d[1].score as f32), (0.9, 0.6), "{name}");
+        assert_eq!(d[0].mask, want0, "{name}");
+        assert_eq!(d[1].mask, want1, "{name}");
+        assert_eq!(d[0].box2d, Some([2.0, 1.0, 5.0, 4.0]), "{name}: (y1, x1, y2, x2) -> [x0, y0, x1, y1]");
+    }
+    assert!(PublishedDetections::read(&dir.join("results_empty.pkl"), 8, 6).unwrap().is_empty());
+    let err = PublishedDetections::read(&dir.join("results_p2.pkl"), 640, 480).unwrap_err().to_string();
+    assert!(err.contains("results_p2.pkl") && err.contains("pred_masks") && err.contains("[480, 640, 2]"), "{err}");
+    // the file of a frame: by scene and frame id
+    let published = PublishedDetections::open(&dir).unwrap();
+    assert!(published.file_for("scene_1", "0000").unwrap_err().to_string().contains("no result file"));
+    assert!(published.file_for("x", "p2").unwrap().ends_with("results_p2.pkl"));
+}

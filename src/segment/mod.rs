@@ -9,6 +9,7 @@
 pub mod card;
 pub mod duplicates;
 pub mod paste;
+pub mod published;
 pub mod rewrite;
 
 use std::collections::HashMap;

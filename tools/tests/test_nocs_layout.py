@@ -30,10 +30,10 @@ def test_files_follow_the_dataset_conventions(recording, layout):
     root, scene = layout
     rec = Recording(recording)
     assert scene == root / "Real" / "test" / "scene_1"
-    assert sorted(p.name for p in scene.glob("*_color.png")) == [f"{i:04d}_color.png" for i in range(len(rec))]
+    assert sorted(p.name for p in scene.glob("*_color.png")) == [f"{f.id}_color.png" for f in rec.frames]
     for i in range(len(rec)):
         ann = rec.annotations(i)
-        nid = f"{i:04d}"
+        nid = rec.frames[i].id
         meta = [ln.split() for ln in (scene / f"{nid}_meta.txt").read_text().splitlines()]
         assert [(int(a), int(b)) for a, b, _ in meta] == [(x.id, x.class_id + 1) for x in ann.instances]
         from PIL import Image
@@ -114,7 +114,7 @@ def test_a_layout_trains_predicts_and_replays(recording, layout, tricons_bin, tm
                           str(tmp_path / "replay.jsonl"), "--no-eval"], capture_output=True, text=True, cwd=REPO)
     assert res.returncode == 0, res.stderr
     lines = [json.loads(ln) for ln in (tmp_path / "replay.jsonl").read_text().splitlines()]
-    assert [ln["frame"] for ln in lines] == [f"{i:04d}" for i in range(len(pa))]
+    assert [ln["frame"] for ln in lines] == [f.id for f in Recording(recording).frames]
     assert [len(ln["instances"]) for ln in lines] == [len(f["instances"]) for f in pb]
 
 
@@ -125,10 +125,60 @@ def test_bad_layouts_are_clear_errors(recording, layout, tmp_path):
     # sizes need the object models
     lone = tmp_path / "lone"
     lone.mkdir()
-    for p in scene.glob("0000_*"):
+    first = sorted(scene.glob("*_color.png"))[0].name[: -len("_color.png")]
+    for p in scene.glob(f"{first}_*"):
         (lone / p.name).write_bytes(p.read_bytes())
     with pytest.raises(RecordingError, match="object models"):
         NocsLayoutRecording(lone).annotations(0)
     assert len(open_any(lone)) == 1
     with pytest.raises(ValueError, match="split"):
         write_nocs_layout(recording, tmp_path / "x", split="real_val")
+
+
+def test_replay_with_the_published_results_equals_the_recording_with_its_masks(recording, layout, tricons_bin,
+                                                                                tmp_path):
+    """`tricons replay --masks results:DIR` on the NOCS-layout scene gives the same
+    predictions, and so the same metrics, as replaying the tricons recording with its
+    ground-truth masks (the result pickles hold exactly those masks)."""
+    root, scene = layout
+    results = root / "segmentation_results" / "real_test"
+
+    def replay(rec, masks, name):
+        out = tmp_path / f"{name}.jsonl"
+        res = subprocess.run([str(tricons_bin), "replay", "--recording", str(rec), "--masks", masks, "--out", str(out),
+                              "--no-eval"], capture_output=True, text=True, cwd=REPO)
+        assert res.returncode == 0, res.stderr
+        report = tmp_path / f"{name}.json"
+        res = subprocess.run([str(tricons_bin), "eval", "--gt", str(recording), "--pred", str(out), "--json",
+                              str(report)], capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+        frames = [json.loads(ln) for ln in out.read_text().splitlines()]
+        return frames, json.loads(report.read_text())["mean"]
+
+    published, m_pub = replay(scene, f"results:{results}", "published")
+    own, m_own = replay(recording, "gt", "own")
+    assert m_pub == m_own
+    assert len(published) == len(own)
+    for a, b in zip(published, own):
+        assert a["frame"] == b["frame"]
+        assert [(x["class"], x["R"], x["t"], x["s"]) for x in a["instances"]] == \
+            [(x["class"], x["R"], x["t"], x["s"]) for x in b["instances"]]
+    # the boxes come from the pickles: (y1, x1, y2, x2) -> [x0, y0, x1, y1]
+    assert all("box2d" in x for f in published for x in f["instances"])
+    # a directory without a frame's file names it
+    lone = tmp_path / "partial"
+    lone.mkdir()
+    first = sorted(results.glob("*.pkl"))[0]
+    (lone / first.name).write_bytes(first.read_bytes())
+    res = subprocess.run([str(tricons_bin), "replay", "--recording", str(scene), "--masks", f"results:{lone}", "--out",
+                          str(tmp_path / "x.jsonl"), "--no-eval"], capture_output=True, text=True, cwd=REPO)
+    assert res.returncode != 0 and "no result file for frame" in res.stderr, res.stderr
+    # a pickle that is not a result dict is a clear error naming the file and field
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for p in results.glob("*.pkl"):
+        with open(bad / p.name, "wb") as f:
+            pickle.dump({"pred_class_ids": [1]}, f, protocol=4)
+    res = subprocess.run([str(tricons_bin), "replay", "--recording", str(scene), "--masks", f"results:{bad}", "--out",
+                          str(tmp_path / "y.jsonl"), "--no-eval"], capture_output=True, text=True, cwd=REPO)
+    assert res.returncode != 0 and "pred_scores" in res.stderr and ".pkl" in res.stderr, res.stderr

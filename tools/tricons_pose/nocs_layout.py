@@ -82,8 +82,9 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
     """Writes the frames of tricons recording ``recording`` as scene ``scene`` of ``split``
     under dataset root ``root``, with the pose pickles (``_label.pkl``, ``gts/``), the
     object models (``obj_models/``) and segmentation-result pickles made from the
-    ground-truth masks (score 1), all written by Python's pickle. Frame k becomes
-    ``{k:04d}``; instance ids and classes are kept. Returns the scene directory.
+    ground-truth masks (score 1), all written by Python's pickle. Frame ids, instance ids
+    and classes are kept (so predictions on the two can be scored against either ground
+    truth). Returns the scene directory.
 
     The recording's intrinsics must be the split's (REAL275 or CAMERA25: a NOCS layout has
     no intrinsics file); depth is written in millimetres.
@@ -106,7 +107,7 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
         ann = rec.annotations(i)
         if ann is None or ann.mask is None or ann.nocs is None:
             raise RecordingError(f"{rec.root}: frame {rec.frames[i].id} has no mask or NOCS map")
-        nid = f"{i:04d}"
+        nid = rec.frames[i].id
         base = scene_dir / nid
         _save_png(base.with_name(f"{nid}_color.png"), rec.color(i))
         depth_mm = np.rint(rec.depth_raw(i).astype(np.float64) * rec.depth_scale_m / DEPTH_SCALE_M)

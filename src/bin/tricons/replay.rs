@@ -15,7 +15,9 @@ use tricons::pose::{PoseEstimator, Skipped};
 use tricons::recording::open_recording;
 use tricons::segment::Segmenter;
 
-use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING, DEFAULT_SEGMENTER, MaskSource};
+use tricons::segment::published::PublishedDetections;
+
+use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING, DEFAULT_SEGMENTER};
 use crate::progress;
 
 /// Arguments of `tricons replay`.
@@ -24,7 +26,8 @@ use crate::progress;
     tricons replay                                   # shipped model on the shipped demo recording\n  \
     tricons replay --recording data/synthnocs-test --out data/replay/test.jsonl\n  \
     tricons replay --recording data/synthnocs-test --overlays data/overlays --iou corrected\n  \
-    tricons replay --masks gt                        # ground-truth masks: the pose model alone\n\n\
+    tricons replay --masks gt                        # ground-truth masks: the pose model alone\n  \
+    tricons replay --recording NOCS/Real/test/scene_1 --masks results:NOCS/segmentation_results/real_test\n\n\
     Raw RGB-D -> Mask R-CNN (--segmenter) -> TriCons-Pose -> predictions. With ground truth,\n\
     the NOCS metrics are printed at the end.")]
 pub struct Args {
@@ -34,9 +37,11 @@ pub struct Args {
     /// Pose model: its card (`*.card.json`) or graph (`*.onnx`, card beside it).
     #[arg(long, default_value = DEFAULT_MODEL)]
     model: PathBuf,
-    /// Instance masks: from the segmentation model, or the recording's ground truth.
-    #[arg(long, value_enum, default_value = "model")]
-    masks: MaskSource,
+    /// Instance masks: `model` (the Mask R-CNN, --segmenter), `gt` (the recording's ground
+    /// truth: the pose model alone) or `results:DIR` (published Mask R-CNN result pickles,
+    /// `results_*_<scene>_<frame>.pkl`, as distributed with SPD / DualPoseNet / AG-Pose).
+    #[arg(long, default_value = "model", value_parser = parse_masks, value_name = "model|gt|results:DIR")]
+    masks: Masks,
     /// Mask R-CNN for `--masks model`: its card or graph (any torchvision export).
     #[arg(long, default_value = DEFAULT_SEGMENTER)]
     segmenter: PathBuf,
@@ -63,6 +68,32 @@ pub struct Args {
     segmenter_threads: usize,
 }
 
+/// Where `replay` takes its instance masks from.
+#[derive(Clone, Debug)]
+enum Masks {
+    Model,
+    Gt,
+    Results(PathBuf),
+}
+
+fn parse_masks(s: &str) -> std::result::Result<Masks, String> {
+    match s {
+        "model" => Ok(Masks::Model),
+        "gt" => Ok(Masks::Gt),
+        _ => match s.strip_prefix("results:") {
+            Some(dir) if !dir.is_empty() => Ok(Masks::Results(PathBuf::from(dir))),
+            _ => Err(format!("{s:?}: expected model, gt or results:DIR")),
+        },
+    }
+}
+
+/// The masks of a run, opened.
+enum MaskInput {
+    Segmenter(Box<Segmenter>),
+    GroundTruth,
+    Published(PublishedDetections),
+}
+
 pub fn run(args: Args) -> Result<()> {
     let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();
@@ -77,16 +108,23 @@ pub fn run(args: Args) -> Result<()> {
         t_load.elapsed().as_secs_f64(),
         rec.describe()
     );
-    let segmenter = match args.masks {
-        MaskSource::Model => {
+    let masks = match &args.masks {
+        Masks::Model => {
             let seg = Segmenter::load(&args.segmenter)
                 .and_then(|s| s.with_threads(args.segmenter_threads))
                 .with_context(|| "loading the segmenter (--segmenter)")?;
             log::info!("masks from {}", seg.onnx_path().display());
-            Some(seg)
+            MaskInput::Segmenter(Box::new(seg))
         }
-        MaskSource::Gt => None,
+        Masks::Gt => MaskInput::GroundTruth,
+        Masks::Results(dir) => {
+            let published = PublishedDetections::open(dir).with_context(|| "opening --masks results:DIR")?;
+            log::info!("masks from the result pickles in {}", dir.display());
+            MaskInput::Published(published)
+        }
     };
+    // the scene name of published result files: the recording directory's name
+    let scene = args.recording.file_name().and_then(|n| n.to_str()).unwrap_or_default().to_string();
     let out = args.out.clone().unwrap_or_else(|| default_out(&args.recording));
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -99,10 +137,14 @@ pub fn run(args: Args) -> Result<()> {
     let t_run = Instant::now();
     for i in 0..rec.len() {
         let frame = rec.read_frame(i)?;
-        let detections: Vec<Detection> = match &segmenter {
-            Some(seg) => detections_from_segmenter(seg, &frame.color)
+        let detections: Vec<Detection> = match &masks {
+            MaskInput::Segmenter(seg) => detections_from_segmenter(seg, &frame.color)
                 .with_context(|| format!("segmenting frame {}", rec.frame_id(i)))?,
-            None => {
+            MaskInput::Published(published) => {
+                let path = published.file_for(&scene, rec.frame_id(i))?;
+                PublishedDetections::read(&path, frame.color.width, frame.color.height)?
+            }
+            MaskInput::GroundTruth => {
                 let Some(ann) = rec.read_annotations(i)? else {
                     bail!(
                         "frame {} of {} has no instance masks: use --masks model (the default)",
