@@ -43,7 +43,8 @@ pub struct ModelCard {
     /// Classes whose rotation is solved from the keypoints instead of taken from the pose
     /// head: the least-squares similarity (Umeyama) between the keypoints' predicted NOCS
     /// coordinates (`kpt_nocs`) and their camera-frame positions (`kpt_3d`). Chosen per
-    /// class on SynthNOCS-val (tools/MODEL.md); empty (the default) keeps the head's.
+    /// class with ground-truth and with segmenter masks (tools/MODEL.md, E1); empty (the
+    /// default) keeps the head's.
     #[serde(default)]
     pub rotation_from_keypoints: Vec<crate::category::Category>,
 }

@@ -154,25 +154,29 @@ impl NpArray<'_> {
 
     /// Row-major order of the elements (a Fortran-ordered array reversed into it).
     fn c_order<T: Copy>(&self, v: Vec<T>) -> Vec<T> {
-        if !self.fortran || self.shape.len() < 2 {
+        if !self.fortran || self.shape.len() < 2 || v.is_empty() {
             return v;
         }
-        let n = v.len();
-        let mut out = Vec::with_capacity(n);
         let dims = &self.shape;
-        for flat in 0..n {
-            // C index -> multi-index -> Fortran offset
-            let (mut rem, mut off, mut stride) = (flat, 0usize, 1usize);
-            let mut idx = vec![0usize; dims.len()];
-            for (k, d) in dims.iter().enumerate().rev() {
-                idx[k] = rem % d;
-                rem /= d;
-            }
-            for (k, d) in dims.iter().enumerate() {
-                off += idx[k] * stride;
-                stride *= d;
-            }
+        // Fortran strides: the first axis varies fastest
+        let mut strides = vec![1usize; dims.len()];
+        for k in 1..dims.len() {
+            strides[k] = strides[k - 1] * dims[k - 1];
+        }
+        // walk the C-order multi-index (last axis fastest), tracking its Fortran offset
+        let mut idx = vec![0usize; dims.len()];
+        let (mut off, mut out) = (0usize, Vec::with_capacity(v.len()));
+        for _ in 0..v.len() {
             out.push(v[off]);
+            for k in (0..dims.len()).rev() {
+                idx[k] += 1;
+                off += strides[k];
+                if idx[k] < dims[k] {
+                    break;
+                }
+                off -= strides[k] * dims[k];
+                idx[k] = 0;
+            }
         }
         out
     }

@@ -108,18 +108,17 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
         if ann is None or ann.mask is None or ann.nocs is None:
             raise RecordingError(f"{rec.root}: frame {rec.frames[i].id} has no mask or NOCS map")
         nid = rec.frames[i].id
-        base = scene_dir / nid
-        _save_png(base.with_name(f"{nid}_color.png"), rec.color(i))
+        _save_png(scene_dir / f"{nid}_color.png", rec.color(i))
         depth_mm = np.rint(rec.depth_raw(i).astype(np.float64) * rec.depth_scale_m / DEPTH_SCALE_M)
-        _save_png(base.with_name(f"{nid}_depth.png"), np.clip(depth_mm, 0, 65535).astype(np.uint16))
+        _save_png(scene_dir / f"{nid}_depth.png", np.clip(depth_mm, 0, 65535).astype(np.uint16))
         label = rec.mask(i, ann)
         mask = np.where(label == 0, MASK_BACKGROUND, label).astype(np.uint8)
-        _save_png(base.with_name(f"{nid}_mask.png"), mask)
+        _save_png(scene_dir / f"{nid}_mask.png", mask)
         nocs = rec.nocs(i, ann)  # [0, 1], the object's NOCS coordinate + 0.5
         coord = np.rint(nocs * 255.0)
         coord[..., 2] = 255.0 - coord[..., 2]  # stored flipped, as the dataset does
         coord[label == 0] = 0
-        _save_png(base.with_name(f"{nid}_coord.png"), coord.astype(np.uint8))
+        _save_png(scene_dir / f"{nid}_coord.png", coord.astype(np.uint8))
         lines, label_pkl, gts, seg = [], {k: [] for k in ("instance_ids", "class_ids", "bboxes", "scales", "rotations",
                                                             "translations", "model_list")}, [], []
         for inst in ann.instances:
@@ -146,7 +145,7 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
             gts.append((class_id(inst.cls), _bbox(inst_mask), RT, extents,
                         1 if inst.cls != "mug" or inst.handle_visible else 0))
             seg.append((class_id(inst.cls), 1.0, inst_mask, _bbox(inst_mask)))
-        (base.with_name(f"{nid}_meta.txt")).write_text("".join(f"{ln}\n" for ln in lines), encoding="utf-8")
+        (scene_dir / f"{nid}_meta.txt").write_text("".join(f"{ln}\n" for ln in lines), encoding="utf-8")
         n = len(label_pkl["instance_ids"])
         label_out = {
             "instance_ids": list(label_pkl["instance_ids"]),
@@ -157,7 +156,7 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
             "translations": np.array(label_pkl["translations"], dtype=np.float32).reshape(n, 3),
             "model_list": list(label_pkl["model_list"]),
         }
-        _save_pickle(base.with_name(f"{nid}_label.pkl"), label_out)
+        _save_pickle(scene_dir / f"{nid}_label.pkl", label_out)
         prefix = f"{SPLIT_DIRS[split][0].lower()}/{SPLIT_DIRS[split][1]}"
         _save_pickle(root / "gts" / split / f"results_{split}_{scene}_{nid}.pkl", {
             "image_path": f"data/{prefix}/{scene}/{nid}",
@@ -289,8 +288,9 @@ class NocsLayoutRecording:
     def depth_m(self, i: int) -> np.ndarray:
         return (self.depth_raw(i).astype(np.float64) * self.depth_scale_m).astype(np.float32)
 
-    def _handles(self, i: int) -> dict[int, bool]:
-        """instance id -> handle visible, from the gts pickle of a real test frame."""
+    def _handles(self, i: int, instance_ids) -> dict[int, bool]:
+        """instance id -> handle visible, from the gts pickle of a real test frame (its
+        entries in the label pickle's ``instance_ids`` order)."""
         if self._split is None:
             return {}
         root, split = self._split
@@ -299,9 +299,7 @@ class NocsLayoutRecording:
             return {}
         with open(p, "rb") as f:
             g = pickle.load(f)
-        ann = self._label(i)
-        ids = list(ann["instance_ids"]) if ann is not None else []
-        return {int(iid): bool(v) for iid, v in zip(ids, g.get("gt_handle_visibility", []))}
+        return {int(iid): bool(v) for iid, v in zip(instance_ids, g.get("gt_handle_visibility", []))}
 
     def _label(self, i: int) -> dict | None:
         name = self.frames[i].annotations
@@ -317,7 +315,7 @@ class NocsLayoutRecording:
         path = self.root / self.frames[i].annotations
         if self._models is None:
             raise RecordingError(f"{path}: sizes need the object models (obj_models/<split>.pkl under the dataset root)")
-        handles = self._handles(i)
+        handles = self._handles(i, lab["instance_ids"])
         instances = []
         for k, iid in enumerate(lab["instance_ids"]):
             cid = int(lab["class_ids"][k])
