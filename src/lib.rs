@@ -6,7 +6,8 @@
 //! (Mask R-CNN) and [`pose`] (TriCons-Pose), which [`pipeline`] runs as a
 //! threaded service; [`output`] holds the predictions format every producer emits;
 //! [`metrics`] scores predictions with the NOCS protocol; [`synth`] renders the
-//! SynthNOCS benchmark. [`geometry`] and [`category`] are shared vocabulary.
+//! SynthNOCS benchmark. [`geometry`] and [`category`] are shared vocabulary; `ros2`
+//! (feature `ros2`) holds the ROS 2 messages that bags, MCAP outputs and DDS topics carry.
 //!
 //! # Example
 //!
@@ -59,6 +60,8 @@ pub mod pose;
 pub mod quant;
 pub mod recording;
 pub mod rng;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 pub mod segment;
 pub mod synth;
 pub mod workers;

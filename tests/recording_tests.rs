@@ -397,3 +397,271 @@ fn a_directory_that_is_neither_layout_is_rejected() {
     let err = err_text(open_recording(dir.path()).err().unwrap());
     assert!(err.contains("neither a tricons recording"), "{err}");
 }
+
+/// ROS 2 bags (MCAP) read as recordings: bags written here with the `mcap` crate's writer and
+/// tricons' CDR encoder (the Python writer's bags are checked in tools/tests/test_ros2.py).
+#[cfg(feature = "ros2")]
+mod ros2_bags {
+    use super::*;
+    use std::borrow::Cow;
+    use std::collections::BTreeMap;
+    use tricons::recording::{BagTopics, McapBag, open_recording_with};
+    use tricons::ros2::msg::{CameraInfo, Header, Image, Time};
+    use tricons::ros2::{cdr, schema};
+
+    const BW: u32 = 8;
+    const BH: u32 = 6;
+
+    /// A message to write: topic, schema, stamp (s), payload.
+    struct Msg {
+        topic: &'static str,
+        schema: (&'static str, &'static str),
+        payload: Vec<u8>,
+    }
+
+    fn header(t: f64) -> Header {
+        Header { stamp: Time::from_seconds(t), frame_id: "cam_optical".into() }
+    }
+
+    fn image(t: f64, encoding: &str, bytes_per_px: u32, data: Vec<u8>) -> Vec<u8> {
+        let img = Image {
+            header: header(t),
+            height: BH,
+            width: BW,
+            encoding: encoding.into(),
+            is_bigendian: 0,
+            step: BW * bytes_per_px,
+            data: Cow::Owned(data),
+        };
+        cdr::encode(&img).unwrap()
+    }
+
+    fn rgb_pixels(seed: u8) -> Vec<u8> {
+        (0..BW * BH * 3).map(|i| (i as u8).wrapping_mul(7).wrapping_add(seed)).collect()
+    }
+
+    fn depth_mm(seed: u16) -> Vec<u16> {
+        (0..BW * BH).map(|i| 400 + i as u16 * 3 + seed).collect()
+    }
+
+    fn color_msg(t: f64, seed: u8) -> Msg {
+        Msg { topic: "/c", schema: schema::IMAGE, payload: image(t, "rgb8", 3, rgb_pixels(seed)) }
+    }
+
+    fn depth_msg(t: f64, seed: u16) -> Msg {
+        let data = depth_mm(seed).iter().flat_map(|v| v.to_le_bytes()).collect();
+        Msg { topic: "/d", schema: schema::IMAGE, payload: image(t, "16UC1", 2, data) }
+    }
+
+    fn info_msg(t: f64) -> Msg {
+        let info = CameraInfo {
+            header: header(t),
+            height: BH,
+            width: BW,
+            distortion_model: "plumb_bob".into(),
+            d: vec![0.0; 5],
+            k: [6.0, 0.0, 3.5, 0.0, 6.5, 2.5, 0.0, 0.0, 1.0],
+            ..CameraInfo::default()
+        };
+        Msg { topic: "/i", schema: schema::CAMERA_INFO, payload: cdr::encode(&info).unwrap() }
+    }
+
+    fn topics() -> BagTopics {
+        BagTopics { color: "/c".into(), depth: "/d".into(), camera_info: "/i".into(), ..BagTopics::default() }
+    }
+
+    fn write_bag(path: &Path, messages: &[Msg]) {
+        let file = std::io::BufWriter::new(fs::File::create(path).unwrap());
+        let mut w = mcap::WriteOptions::new().profile("ros2").create(file).unwrap();
+        let mut channels: BTreeMap<&str, u16> = BTreeMap::new();
+        for (seq, m) in messages.iter().enumerate() {
+            let id = match channels.get(m.topic) {
+                Some(&id) => id,
+                None => {
+                    let s = w.add_schema(m.schema.0, "ros2msg", m.schema.1.as_bytes()).unwrap();
+                    let id = w.add_channel(s, m.topic, "cdr", &BTreeMap::new()).unwrap();
+                    channels.insert(m.topic, id);
+                    id
+                }
+            };
+            let header = mcap::records::MessageHeader {
+                channel_id: id,
+                sequence: seq as u32,
+                log_time: seq as u64,
+                publish_time: seq as u64,
+            };
+            w.write_to_known_channel(&header, &m.payload).unwrap();
+        }
+        w.finish().unwrap();
+    }
+
+    fn open_err(path: &Path) -> String {
+        match open_recording_with(path, &topics()) {
+            Ok(_) => panic!("{} opened", path.display()),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn a_bag_reads_as_frames_paired_by_stamp() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("b.mcap");
+        // colour all first, then depth (one 4 ms late, one without a partner), then info
+        let messages = vec![
+            color_msg(10.0, 1),
+            color_msg(10.1, 2),
+            color_msg(10.2, 3),
+            depth_msg(10.004, 1),
+            depth_msg(10.1, 2),
+            depth_msg(10.15, 9),
+            depth_msg(10.2, 3),
+            info_msg(10.0),
+        ];
+        write_bag(&path, &messages);
+        let rec = open_recording_with(&path, &topics()).unwrap();
+        assert_eq!(rec.len(), 3);
+        assert_eq!(rec.camera_frame_id(), Some("cam_optical"));
+        assert_eq!(rec.intrinsics(), Intrinsics { width: BW, height: BH, fx: 6.0, fy: 6.5, cx: 3.5, cy: 2.5 });
+        // backwards and forwards: every frame is its own colour and depth
+        for i in [2usize, 0, 1, 2, 1] {
+            let f = rec.read_frame(i).unwrap();
+            assert_eq!(rec.frame_id(i), format!("{i:06}"));
+            assert_eq!(f.color.data, rgb_pixels(i as u8 + 1));
+            assert_eq!(f.depth.data, depth_mm(i as u16 + 1));
+            assert_eq!(f.depth.depth_scale_m, DEPTH_SCALE_MM);
+            assert!((f.timestamp_s - (10.0 + 0.1 * i as f64)).abs() < 1e-9);
+            assert_eq!(rec.timestamp_s(i), Some(f.timestamp_s));
+        }
+        let bag = McapBag::open(&path, &topics()).unwrap();
+        assert_eq!(bag.unpaired(), (0, 1));
+    }
+
+    #[test]
+    fn colour_and_depth_encodings_convert_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let rgb = rgb_pixels(5);
+        let bgr: Vec<u8> = rgb.chunks(3).flat_map(|p| [p[2], p[1], p[0]]).collect();
+        let bgra: Vec<u8> = rgb.chunks(3).flat_map(|p| [p[2], p[1], p[0], 255]).collect();
+        let metres: Vec<f32> = (0..BW * BH)
+            .map(|i| match i {
+                0 => f32::NAN,
+                1 => -1.0,
+                2 => 70.0,
+                3 => 1.2344,
+                _ => 0.5 + i as f32 * 0.001,
+            })
+            .collect();
+        let f32_bytes: Vec<u8> = metres.iter().flat_map(|v| v.to_le_bytes()).collect();
+        for (encoding, bpp, data) in [("bgr8", 3, bgr), ("bgra8", 4, bgra)] {
+            let path = dir.path().join(format!("{encoding}.mcap"));
+            let color = Msg { topic: "/c", schema: schema::IMAGE, payload: image(1.0, encoding, bpp, data) };
+            let depth = Msg { topic: "/d", schema: schema::IMAGE, payload: image(1.0, "32FC1", 4, f32_bytes.clone()) };
+            write_bag(&path, &[info_msg(1.0), color, depth]);
+            let f = open_recording_with(&path, &topics()).unwrap().read_frame(0).unwrap();
+            assert_eq!(f.color.data, rgb, "{encoding}");
+            assert_eq!(&f.depth.data[..4], &[0, 0, 0, 1234]);
+            for (i, mm) in f.depth.data.iter().enumerate().skip(4) {
+                assert_eq!(*mm, (500 + i) as u16);
+            }
+        }
+    }
+
+    #[test]
+    fn bad_bags_are_errors_naming_the_file_and_topic() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = |name: &str| dir.path().join(name);
+        // not an MCAP file
+        fs::write(p("junk.mcap"), b"SQLite format 3\0 not a bag").unwrap();
+        let e = open_err(&p("junk.mcap"));
+        assert!(e.contains("junk.mcap") && e.contains("not an MCAP file"), "{e}");
+        // no camera info: the topics it has are listed
+        write_bag(&p("noinfo.mcap"), &[color_msg(1.0, 1), depth_msg(1.0, 1)]);
+        let e = open_err(&p("noinfo.mcap"));
+        assert!(e.contains("no messages on /i") && e.contains("--camera-info-topic"), "{e}");
+        assert!(e.contains("/c (sensor_msgs/msg/Image, 1 messages)"), "{e}");
+        // a CameraInfo on the depth topic
+        let wrong = Msg { topic: "/d", ..info_msg(1.0) };
+        write_bag(&p("wrong.mcap"), &[info_msg(1.0), color_msg(1.0, 1), wrong]);
+        let e = open_err(&p("wrong.mcap"));
+        assert!(e.contains("topic /d carries \"sensor_msgs/msg/CameraInfo\""), "{e}");
+        // an encoding tricons does not read: opens, the frame is an error naming topic and encoding
+        let yuv = Msg { topic: "/c", schema: schema::IMAGE, payload: image(1.0, "yuv422", 2, vec![0; 96]) };
+        write_bag(&p("yuv.mcap"), &[info_msg(1.0), yuv, depth_msg(1.0, 1)]);
+        let e = open_recording_with(&p("yuv.mcap"), &topics()).unwrap().read_frame(0).unwrap_err().to_string();
+        assert!(e.contains("yuv.mcap") && e.contains("(/c)") && e.contains("\"yuv422\""), "{e}");
+        // depth of another size than colour: not aligned
+        let mut small = depth_msg(1.0, 1);
+        let img = Image { width: 4, height: 3, step: 8, data: Cow::Owned(vec![0; 24]), ..Image::default() };
+        small.payload = cdr::encode(&Image { header: header(1.0), encoding: "16UC1".into(), ..img }).unwrap();
+        write_bag(&p("unaligned.mcap"), &[info_msg(1.0), color_msg(1.0, 1), small]);
+        let e = open_recording_with(&p("unaligned.mcap"), &topics()).unwrap().read_frame(0).unwrap_err().to_string();
+        assert!(e.contains("4x3") && e.contains("aligned to colour"), "{e}");
+        // a payload that is not the message its schema says
+        let garbage = Msg { topic: "/c", schema: schema::IMAGE, payload: vec![0, 1, 0, 0, 9] };
+        write_bag(&p("garbage.mcap"), &[info_msg(1.0), garbage, depth_msg(1.0, 1)]);
+        let e = open_err(&p("garbage.mcap"));
+        assert!(e.contains("topic /c message 1") && e.contains("not the expected message"), "{e}");
+        // truncated inside the data: an error, whatever the cut
+        write_bag(&p("whole.mcap"), &[info_msg(1.0), color_msg(1.0, 1), depth_msg(1.0, 1)]);
+        let whole = fs::read(p("whole.mcap")).unwrap();
+        for cut in [9, whole.len() / 3, whole.len() / 2, whole.len() - 9] {
+            fs::write(p("cut.mcap"), &whole[..cut]).unwrap();
+            let e = open_err(&p("cut.mcap"));
+            assert!(e.contains("cut.mcap"), "{e}");
+        }
+    }
+
+    /// What the MCAP sink writes decodes back to the messages of the JSON Lines result, and
+    /// the file appears only when complete.
+    #[test]
+    fn the_mcap_sink_writes_a_complete_bag_on_close() {
+        use tricons::output::mcap_sink::{DETECTIONS_TOPIC, McapSink, OVERLAY_TOPIC};
+        use tricons::output::sink::Sink;
+        use tricons::output::{FramePredictions, PredInstance};
+        use tricons::ros2::convert;
+        use tricons::ros2::msg::Detection3DArray;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out/results.mcap");
+        let mut sink = McapSink::create(&path, "cam").unwrap();
+        let inst = PredInstance {
+            class: Category::Laptop,
+            score: 0.5,
+            camera_from_object: Pose::new(
+                rotation_axis_angle(&Vec3::new(0.0, 1.0, 0.0), 0.3),
+                Vec3::new(0.0, 0.1, 0.7),
+            ),
+            size_m: [0.3, 0.2, 0.25],
+            box2d: None,
+            mask: None,
+        };
+        let frames: Vec<FramePredictions> = (0..3)
+            .map(|i| FramePredictions {
+                frame: format!("{i:06}"),
+                timestamp_s: Some(100.0 + f64::from(i)),
+                instances: vec![inst.clone(); i as usize],
+            })
+            .collect();
+        for f in &frames {
+            sink.publish_with_image(f, "", &frame(3)).unwrap();
+        }
+        sink.flush().unwrap();
+        assert!(!path.exists(), "the bag appears only when complete");
+        sink.close().unwrap();
+        let bytes = fs::read(&path).unwrap();
+        assert!(!dir.path().join("out/results.mcap.part").exists());
+        let mut seen = 0;
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            let i = (m.log_time / 1_000_000_000 - 100) as usize;
+            if m.channel.topic == DETECTIONS_TOPIC {
+                let msg: Detection3DArray = cdr::decode(&m.data, "test").unwrap();
+                assert_eq!(msg, convert::detections(&frames[i], "cam"));
+                seen += 1;
+            } else if m.channel.topic == OVERLAY_TOPIC {
+                let img: Image = cdr::decode(&m.data, "test").unwrap();
+                assert_eq!((img.width, img.height, img.data.len()), (W, H, (W * H * 3) as usize));
+            }
+        }
+        assert_eq!(seen, 3);
+    }
+}

@@ -22,5 +22,5 @@ pub mod v4l2;
 #[cfg(all(feature = "v4l", target_os = "linux"))]
 pub use camera::{CameraSettings, CameraSource};
 pub use pairing::{FramePairer, Pair, PairingStats, Timed};
-pub use registration::{CameraConfig, register_depth};
+pub use registration::{CameraConfig, DEFAULT_FRAME_ID, register_depth};
 pub use source::{FrameSource, Pace, RecordingSource, SourceFrame};

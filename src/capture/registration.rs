@@ -35,6 +35,17 @@ pub struct CameraConfig {
     pub color_from_depth: Pose,
     /// Metres per raw depth unit (0.001 for the D4xx default of millimetres).
     pub depth_scale_m: f64,
+    /// Name of the colour camera's optical frame: the `frame_id` of what tricons publishes
+    /// over ROS 2 and writes to MCAP (poses are in this frame) [default: `camera_color_optical_frame`].
+    #[serde(default = "default_frame_id")]
+    pub frame_id: String,
+}
+
+/// The RealSense ROS wrapper's name of the colour optical frame.
+pub const DEFAULT_FRAME_ID: &str = "camera_color_optical_frame";
+
+fn default_frame_id() -> String {
+    DEFAULT_FRAME_ID.to_string()
 }
 
 impl CameraConfig {
@@ -48,6 +59,7 @@ impl CameraConfig {
             depth: intrinsics,
             color_from_depth: Pose::IDENTITY,
             depth_scale_m,
+            frame_id: default_frame_id(),
         }
     }
 

@@ -8,7 +8,7 @@
 use super::registration::CameraConfig;
 use crate::error::{Error, Result};
 use crate::frame::RgbdFrame;
-use crate::recording::{FrameAnnotations, Recording, TriconsRecording, open_recording};
+use crate::recording::{BagTopics, FrameAnnotations, Recording, TriconsRecording, open_recording_with};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -61,6 +61,7 @@ pub enum Pace {
 /// Replays a recording as a [`FrameSource`].
 pub struct RecordingSource {
     path: PathBuf,
+    topics: BagTopics,
     recording: Box<dyn Recording>,
     camera: CameraConfig,
     pace: Pace,
@@ -80,21 +81,27 @@ pub struct RecordingSource {
 }
 
 impl RecordingSource {
-    /// Opens the recording at `path` (tricons format or NOCS layout), played
-    /// once at `pace`.
+    /// Opens the recording at `path` (tricons format, NOCS layout, or a ROS 2 bag read
+    /// from the default topics), played once at `pace`.
     pub fn open(path: &Path, pace: Pace) -> Result<RecordingSource> {
+        RecordingSource::open_with(path, pace, &BagTopics::default())
+    }
+
+    /// [`open`](Self::open), reading a ROS 2 bag from `topics`.
+    pub fn open_with(path: &Path, pace: Pace, topics: &BagTopics) -> Result<RecordingSource> {
         if let Pace::Recorded { speed } = pace
             && !(speed.is_finite() && speed > 0.0)
         {
             return Err(Error::InvalidArgument(format!("replay speed {speed} must be positive")));
         }
-        let recording = open_recording(path)?;
+        let recording = open_recording_with(path, topics)?;
         if recording.is_empty() {
             return Err(Error::parse(path, None, "the recording has no frames"));
         }
         let camera = recording_camera(path, recording.as_ref());
         Ok(RecordingSource {
             path: path.to_path_buf(),
+            topics: topics.clone(),
             recording,
             camera,
             pace,
@@ -145,7 +152,13 @@ fn recording_camera(path: &Path, recording: &dyn Recording) -> CameraConfig {
             }
             config
         }
-        Err(_) => CameraConfig::registered(recording.intrinsics(), crate::frame::DEPTH_SCALE_MM),
+        Err(_) => {
+            let mut config = CameraConfig::registered(recording.intrinsics(), crate::frame::DEPTH_SCALE_MM);
+            if let Some(frame_id) = recording.camera_frame_id() {
+                config.frame_id = frame_id.to_string();
+            }
+            config
+        }
     }
 }
 
@@ -221,7 +234,7 @@ impl FrameSource for RecordingSource {
     }
 
     fn reopen(&mut self) -> Result<()> {
-        self.recording = open_recording(&self.path)?;
+        self.recording = open_recording_with(&self.path, &self.topics)?;
         if self.next_index > self.recording.len() {
             self.next_index = self.recording.len();
         }

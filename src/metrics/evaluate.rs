@@ -172,6 +172,65 @@ pub fn evaluate<'a>(
     }
 }
 
+/// Renames each frame of `preds` to the recording's frame nearest in time, within
+/// `tolerance_s`: for predictions of a stream whose frame ids are not the recording's (a ROS 2
+/// bag made from it, a camera recorded alongside). Every prediction frame needs a timestamp and
+/// a match; two prediction frames may not match one recording frame.
+pub fn match_frames_by_timestamp(
+    rec: &dyn Recording,
+    preds: &[FramePredictions],
+    pred_path: &Path,
+    tolerance_s: f64,
+) -> Result<Vec<FramePredictions>> {
+    let mut times: Vec<(f64, usize)> = Vec::with_capacity(rec.len());
+    for i in 0..rec.len() {
+        let Some(t) = rec.timestamp_s(i) else {
+            return Err(Error::InvalidArgument(format!(
+                "{}: frame {:?} has no timestamp to match predictions by (use --match id)",
+                rec.describe(),
+                rec.frame_id(i)
+            )));
+        };
+        times.push((t, i));
+    }
+    times.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut taken: HashMap<usize, usize> = HashMap::new();
+    let mut out = Vec::with_capacity(preds.len());
+    for (k, frame) in preds.iter().enumerate() {
+        let line = Some(k + 1);
+        let Some(t) = frame.timestamp_s else {
+            return Err(Error::parse(pred_path, line, format!("frame {:?} has no timestamp_s", frame.frame)));
+        };
+        let at = times.partition_point(|(x, _)| *x < t);
+        let nearest = [at.checked_sub(1), Some(at)]
+            .into_iter()
+            .flatten()
+            .filter_map(|j| times.get(j))
+            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()));
+        let Some(&(tr, i)) = nearest.filter(|(tr, _)| (tr - t).abs() <= tolerance_s) else {
+            return Err(Error::parse(
+                pred_path,
+                line,
+                format!("frame {:?} at {t} s: no frame of {} within {tolerance_s} s", frame.frame, rec.describe()),
+            ));
+        };
+        if let Some(first) = taken.insert(i, k) {
+            return Err(Error::parse(
+                pred_path,
+                line,
+                format!(
+                    "frame {:?} at {t} s matches recording frame {:?} ({tr} s), as line {} did",
+                    frame.frame,
+                    rec.frame_id(i),
+                    first + 1
+                ),
+            ));
+        }
+        out.push(FramePredictions { frame: rec.frame_id(i).to_string(), ..frame.clone() });
+    }
+    Ok(out)
+}
+
 /// Evaluates a predictions file's frames against a recording's ground truth.
 ///
 /// `preds` are matched to recording frames by frame id; `pred_path` is only

@@ -29,31 +29,41 @@ pub fn class_color(c: Category) -> [u8; 3] {
 
 /// Draw `instances` over a copy of the frame's colour image; returns PNG bytes.
 pub fn draw_overlay(frame: &RgbdFrame, instances: &[PredInstance]) -> Result<Vec<u8>> {
+    let img = overlay_image(frame, instances);
+    encode_png(img.width, img.height, png::ColorType::Rgb, png::BitDepth::Eight, &img.data)
+}
+
+/// `instances` drawn over a copy of the frame's colour image.
+pub fn overlay_image(frame: &RgbdFrame, instances: &[PredInstance]) -> ColorImage {
     let mut img = frame.color.clone();
     for inst in instances {
         draw_instance(&mut img, &frame.intrinsics, inst);
     }
-    encode_png(img.width, img.height, png::ColorType::Rgb, png::BitDepth::Eight, &img.data)
+    img
+}
+
+/// The 8 corners of an instance's box in the camera frame; corner `i` has the sign of
+/// half-size axis `a` given by bit `a` of `i` (set: +), so corners `i` and `i | 1 << a` share an edge.
+pub fn box_corners(inst: &PredInstance) -> [Vec3; 8] {
+    let half = Vec3::new(inst.size_m[0], inst.size_m[1], inst.size_m[2]) / 2.0;
+    std::array::from_fn(|i| {
+        let sign = |bit: usize| if i >> bit & 1 == 1 { 1.0 } else { -1.0 };
+        inst.camera_from_object.transform_point(&Vec3::new(sign(0) * half.x, sign(1) * half.y, sign(2) * half.z))
+    })
+}
+
+/// The 12 edges of a box as pairs of corner indices of [`box_corners`].
+pub fn box_edges() -> impl Iterator<Item = (usize, usize)> {
+    (0..8usize).flat_map(|a| (0..3).map(move |bit| (a, a | (1 << bit)))).filter(|(a, b)| a != b)
 }
 
 /// Box edges (12) and axes (x red, y green, z blue) of one instance, and its label.
 pub fn draw_instance(img: &mut ColorImage, k: &Intrinsics, inst: &PredInstance) {
     let pose = &inst.camera_from_object;
-    let half = Vec3::new(inst.size_m[0], inst.size_m[1], inst.size_m[2]) / 2.0;
-    let corners: Vec<Vec3> = (0..8)
-        .map(|i| {
-            let sign = |bit: usize| if i >> bit & 1 == 1 { 1.0 } else { -1.0 };
-            pose.transform_point(&Vec3::new(sign(0) * half.x, sign(1) * half.y, sign(2) * half.z))
-        })
-        .collect();
+    let corners = box_corners(inst);
     let color = class_color(inst.class);
-    for a in 0..8usize {
-        for bit in 0..3 {
-            let b = a | (1 << bit);
-            if b != a {
-                draw_segment(img, k, &corners[a], &corners[b], color);
-            }
-        }
+    for (a, b) in box_edges() {
+        draw_segment(img, k, &corners[a], &corners[b], color);
     }
     let len = AXIS_SHARE * inst.size_m.iter().copied().fold(0.0, f64::max);
     let origin = pose.translation_m;

@@ -1,8 +1,10 @@
-//! Where the pose service's results go: JSON Lines writers (stdout, a file)
-//! and the HTTP stream hub ([`super::http`]).
+//! Where the pose service's results go: JSON Lines writers (stdout, a file), the HTTP
+//! stream hub ([`super::http`]), MCAP files ([`super::mcap_sink`]) and ROS 2 topics
+//! ([`super::ros2_sink`]).
 
 use super::predictions::FramePredictions;
 use crate::error::{Error, Result};
+use crate::frame::RgbdFrame;
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -13,8 +15,17 @@ pub trait Sink: Send {
     fn describe(&self) -> String;
     /// Emits one frame's result; `line` is its JSON Lines form (no newline).
     fn publish(&mut self, frame: &FramePredictions, line: &str) -> Result<()>;
+    /// Emits one frame's result with the RGB-D frame it came from; sinks that show images
+    /// (overlays in an MCAP file) use it, the others ignore the image. The pipeline calls this.
+    fn publish_with_image(&mut self, frame: &FramePredictions, line: &str, _image: &RgbdFrame) -> Result<()> {
+        self.publish(frame, line)
+    }
     /// Makes everything published so far durable/visible.
     fn flush(&mut self) -> Result<()>;
+    /// The end of the stream: completes the output (an MCAP file's summary) and flushes.
+    fn close(&mut self) -> Result<()> {
+        self.flush()
+    }
 }
 
 /// JSON Lines to stdout or a file. Each line is written whole and flushed, so a reader

@@ -271,7 +271,7 @@ impl Pipeline {
                 };
                 let line = crate::output::predictions::to_json_line(&predictions);
                 for sink in sinks.iter_mut() {
-                    if let Err(e) = sink.publish(&predictions, &line) {
+                    if let Err(e) = sink.publish_with_image(&predictions, &line, &work.frame.frame) {
                         log::error!("output {}: {e}; stopping", sink.describe());
                         sink_error.get_or_insert(e);
                         stop.stop();
@@ -282,7 +282,8 @@ impl Pipeline {
                 stats.published();
             }
             for sink in sinks.iter_mut() {
-                if let Err(e) = sink.flush() {
+                if let Err(e) = sink.close() {
+                    log::error!("output {}: {e}", sink.describe());
                     sink_error.get_or_insert(e);
                 }
             }

@@ -7,23 +7,62 @@
 //! - the NOCS dataset layout ([`NocsLayout`]): `<frame>_color.png`,
 //!   `_depth.png`, `_mask.png`, `_coord.png`, `_meta.txt`.
 //!
-//! [`open_recording`] picks the layout from what the directory holds.
+//! - ROS 2 bags stored as MCAP ([`McapBag`], feature `ros2`): colour, aligned depth and
+//!   camera info topics, paired by stamp ([`BagTopics`] names them).
+//!
+//! [`open_recording`] picks the layout from what the path holds.
 
 pub mod annotations;
 pub mod manifest;
+#[cfg(feature = "ros2")]
+pub mod mcap_bag;
 pub mod nocs_layout;
 pub mod reader;
 pub mod writer;
 
 pub use annotations::{FrameAnnotations, GtInstance};
 pub use manifest::{FrameEntry, Manifest, RECORDING_FORMAT, RECORDING_FORMAT_VERSION};
+#[cfg(feature = "ros2")]
+pub use mcap_bag::McapBag;
 pub use nocs_layout::NocsLayout;
 pub use reader::TriconsRecording;
 pub use writer::{RecordingWriter, WriteMode, write_frame_files};
 
+use crate::capture::pairing::DEFAULT_PAIR_TOLERANCE_S;
 use crate::error::{Error, Result};
 use crate::frame::{Intrinsics, RgbdFrame};
 use std::path::Path;
+
+/// Colour topic of the RealSense ROS 2 wrapper (`realsense2_camera`, namespace `camera`).
+pub const DEFAULT_COLOR_TOPIC: &str = "/camera/camera/color/image_raw";
+/// Depth registered to colour (`align_depth.enable:=true`).
+pub const DEFAULT_DEPTH_TOPIC: &str = "/camera/camera/aligned_depth_to_color/image_raw";
+/// Calibration of the colour camera.
+pub const DEFAULT_CAMERA_INFO_TOPIC: &str = "/camera/camera/color/camera_info";
+
+/// The topics a bag is read from.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BagTopics {
+    /// Colour images (`sensor_msgs/Image` or `sensor_msgs/CompressedImage`).
+    pub color: String,
+    /// Depth registered to colour (`sensor_msgs/Image`).
+    pub depth: String,
+    /// The colour camera's calibration (`sensor_msgs/CameraInfo`).
+    pub camera_info: String,
+    /// Largest colour/depth stamp difference paired, seconds.
+    pub pair_tolerance_s: f64,
+}
+
+impl Default for BagTopics {
+    fn default() -> BagTopics {
+        BagTopics {
+            color: DEFAULT_COLOR_TOPIC.into(),
+            depth: DEFAULT_DEPTH_TOPIC.into(),
+            camera_info: DEFAULT_CAMERA_INFO_TOPIC.into(),
+            pair_tolerance_s: DEFAULT_PAIR_TOLERANCE_S,
+        }
+    }
+}
 
 /// A sequence of recorded frames with optional ground truth.
 pub trait Recording: Send + Sync {
@@ -45,15 +84,37 @@ pub trait Recording: Send + Sync {
     fn read_instances(&self, index: usize) -> Result<Option<Vec<GtInstance>>>;
     /// Reads the full ground truth (instances, mask, NOCS map) of frame `index`.
     fn read_annotations(&self, index: usize) -> Result<Option<FrameAnnotations>>;
+    /// The capture time of frame `index` in seconds, when known without reading the frame.
+    fn timestamp_s(&self, _index: usize) -> Option<f64> {
+        None
+    }
+    /// The colour camera's frame name, when the recording has one (a ROS 2 bag's `frame_id`).
+    fn camera_frame_id(&self) -> Option<&str> {
+        None
+    }
 }
 
-/// Opens a recording directory in either layout: `manifest.json` means the
-/// tricons format, `*_color.png` files mean the NOCS layout.
+/// Opens a recording in any layout: `manifest.json` means the tricons format, `*_color.png`
+/// files the NOCS layout, a `.mcap` file a ROS 2 bag (read from the default [`BagTopics`]).
 pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>> {
+    open_recording_with(path, &BagTopics::default())
+}
+
+/// [`open_recording`], reading a ROS 2 bag from `topics`.
+pub fn open_recording_with(path: &Path, topics: &BagTopics) -> Result<Box<dyn Recording>> {
+    if path.is_file() && path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
+        #[cfg(feature = "ros2")]
+        return Ok(Box::new(McapBag::open(path, topics)?));
+        #[cfg(not(feature = "ros2"))]
+        return Err(Error::parse(path, None, format!("this build reads no ROS 2 bags (feature `ros2`); {topics:?}")));
+    }
     if !path.is_dir() {
         return Err(Error::io(
             path,
-            std::io::Error::new(std::io::ErrorKind::NotFound, "recording directory not found"),
+            std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                "recording not found (a directory, or a .mcap ROS 2 bag)",
+            ),
         ));
     }
     if path.join(manifest::MANIFEST_FILE).exists() {

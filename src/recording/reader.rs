@@ -93,6 +93,10 @@ impl Recording for TriconsRecording {
         self.manifest.intrinsics
     }
 
+    fn timestamp_s(&self, index: usize) -> Option<f64> {
+        self.manifest.frames.get(index).map(|f| f.timestamp_s)
+    }
+
     fn read_frame(&self, index: usize) -> Result<RgbdFrame> {
         let entry = self.entry(index)?;
         let color_path = self.root.join(&entry.color);

@@ -3,7 +3,7 @@
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 use tricons::atomic::write_atomic;
-use tricons::metrics::{EvalConfig, IouMode, PoseThreshold, evaluate_recording};
+use tricons::metrics::{EvalConfig, IouMode, PoseThreshold, evaluate_recording, match_frames_by_timestamp};
 use tricons::output::read_predictions;
 use tricons::recording::open_recording;
 
@@ -12,7 +12,8 @@ use tricons::recording::open_recording;
 #[command(after_help = "Examples:\n  \
     tricons eval --gt data/synthnocs-test --pred pred.jsonl\n  \
     tricons eval --gt data/synthnocs-test --pred pred.jsonl --iou corrected --json report.json\n  \
-    tricons eval --gt scene_1 --pred pred.jsonl --iou-threshold 0.1 --pose-threshold 15deg5cm\n\n\
+    tricons eval --gt scene_1 --pred pred.jsonl --iou-threshold 0.1 --pose-threshold 15deg5cm\n  \
+    tricons eval --gt tests/data/synthnocs-demo --pred bag.jsonl --match timestamp\n\n\
     The table always names the IoU variant: `published` reproduces the per-corner box extents of the\n\
     NOCS reference code that every published table uses; `corrected` takes per-axis extents.")]
 pub struct Args {
@@ -34,11 +35,28 @@ pub struct Args {
     /// Where to write the JSON report [default: PRED with extension .eval.json].
     #[arg(long)]
     json: Option<PathBuf>,
+    /// How prediction frames find their ground truth: `id` (the frame ids) or `timestamp`
+    /// (the nearest frame within 1 ms: predictions of a ROS 2 bag made from the recording).
+    #[arg(long = "match", value_enum, default_value = "id")]
+    match_by: MatchBy,
 }
+
+/// How `eval` pairs prediction frames with ground-truth frames.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum MatchBy {
+    Id,
+    Timestamp,
+}
+
+/// Largest timestamp difference of `--match timestamp`, seconds.
+const MATCH_TOLERANCE_S: f64 = 1e-3;
 
 pub fn run(args: Args) -> Result<()> {
     let rec = open_recording(&args.gt)?;
-    let preds = read_predictions(&args.pred)?;
+    let mut preds = read_predictions(&args.pred)?;
+    if let MatchBy::Timestamp = args.match_by {
+        preds = match_frames_by_timestamp(rec.as_ref(), &preds, &args.pred, MATCH_TOLERANCE_S)?;
+    }
     let mut cfg = EvalConfig { iou_mode: args.iou, ..EvalConfig::default() };
     for t in args.iou_thresholds {
         anyhow::ensure!((0.0..1.0).contains(&t), "--iou-threshold {t} must be in [0, 1)");

@@ -54,7 +54,7 @@ enum Command {
     /// List V4L2 capture devices: formats and frame sizes.
     Devices(devices::Args),
     /// The on-device pose service: camera or recording -> masks -> poses -> JSON Lines + HTTP.
-    Serve(serve::Args),
+    Serve(Box<serve::Args>),
     /// Record RGB-D frames from a camera (or a recording) into a recording.
     Record(record::Args),
 }
@@ -72,7 +72,7 @@ fn main() -> std::process::ExitCode {
         Command::Quantize(args) => quantize::run(args),
         Command::Validate(args) => validate::run(args),
         Command::Devices(args) => devices::run(args),
-        Command::Serve(args) => serve::run(args),
+        Command::Serve(args) => serve::run(*args),
         Command::Record(args) => record::run(args),
     };
     match result {

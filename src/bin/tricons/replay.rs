@@ -12,13 +12,14 @@ use tricons::pipeline::stages::{
     Detection, detections_from_annotations, detections_from_segmenter, estimate_detections,
 };
 use tricons::pose::{PoseEstimator, Skipped};
-use tricons::recording::open_recording;
+use tricons::recording::open_recording_with;
 use tricons::segment::Segmenter;
 
 use tricons::segment::published::PublishedDetections;
 
 use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING, DEFAULT_SEGMENTER};
 use crate::progress;
+use crate::source_args::BagTopicArgs;
 
 /// Arguments of `tricons replay`.
 #[derive(clap::Args)]
@@ -27,13 +28,17 @@ use crate::progress;
     tricons replay --recording data/synthnocs-test --out data/replay/test.jsonl\n  \
     tricons replay --recording data/synthnocs-test --overlays data/overlays --iou corrected\n  \
     tricons replay --masks gt                        # ground-truth masks: the pose model alone\n  \
-    tricons replay --recording NOCS/Real/test/scene_1 --masks results:NOCS/segmentation_results/real_test\n\n\
+    tricons replay --recording NOCS/Real/test/scene_1 --masks results:NOCS/segmentation_results/real_test\n  \
+    tricons replay --recording bag.mcap --mcap poses.mcap  # a ROS 2 bag in (RealSense topics), MCAP out\n  \
+    tricons replay --recording bag.mcap --color-topic /cam/color/image_raw/compressed --depth-topic /cam/depth\n\n\
     Raw RGB-D -> Mask R-CNN (--segmenter) -> TriCons-Pose -> predictions. With ground truth,\n\
     the NOCS metrics are printed at the end.")]
 pub struct Args {
-    /// Recording directory (tricons format or NOCS dataset layout).
-    #[arg(long, default_value = DEFAULT_RECORDING)]
+    /// Recording directory (tricons format or NOCS dataset layout) or ROS 2 bag (`.mcap`).
+    #[arg(long, default_value = DEFAULT_RECORDING, value_name = "DIR|BAG.mcap")]
     recording: PathBuf,
+    #[command(flatten)]
+    bag: BagTopicArgs,
     /// Pose model: its card (`*.card.json`) or graph (`*.onnx`, card beside it).
     #[arg(long, default_value = DEFAULT_MODEL)]
     model: PathBuf,
@@ -51,6 +56,11 @@ pub struct Args {
     /// Also write one overlay PNG per frame (3D boxes, axes, labels) into this directory.
     #[arg(long)]
     overlays: Option<PathBuf>,
+    /// Also write the results as a ROS 2 bag: /tricons/detections (vision_msgs/Detection3DArray),
+    /// /tricons/markers (visualization_msgs/MarkerArray) and /tricons/overlay (sensor_msgs/Image).
+    #[cfg(feature = "ros2")]
+    #[arg(long, value_name = "OUT.mcap")]
+    mcap: Option<PathBuf>,
     /// Seed of the point sampling (frame i, instance j draw from (seed, i, j)).
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -95,7 +105,8 @@ enum MaskInput {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
+    let rec = open_recording_with(&args.recording, &args.bag.topics(None))
+        .with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();
     let threads = crate::common::threads(args.threads);
     let estimator = PoseEstimator::load(&args.model)
@@ -132,6 +143,14 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(dir) = &args.overlays {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
+    #[cfg(feature = "ros2")]
+    let mut mcap = match &args.mcap {
+        Some(path) => {
+            let frame_id = rec.camera_frame_id().unwrap_or(tricons::capture::DEFAULT_FRAME_ID);
+            Some(tricons::output::mcap_sink::McapSink::create(path, frame_id).with_context(|| "creating --mcap")?)
+        }
+        None => None,
+    };
     let bar = progress::bar(rec.len(), "replay");
     let (mut frames, mut skipped, mut estimated) = (Vec::with_capacity(rec.len()), 0usize, 0usize);
     let t_run = Instant::now();
@@ -170,16 +189,24 @@ pub fn run(args: Args) -> Result<()> {
             let path = dir.join(format!("{}_overlay.png", rec.frame_id(i)));
             write_atomic(&path, &png)?;
         }
-        frames.push(FramePredictions {
-            frame: rec.frame_id(i).to_string(),
-            timestamp_s: Some(frame.timestamp_s),
-            instances,
-        });
+        let predictions =
+            FramePredictions { frame: rec.frame_id(i).to_string(), timestamp_s: Some(frame.timestamp_s), instances };
+        #[cfg(feature = "ros2")]
+        if let Some(sink) = mcap.as_mut() {
+            use tricons::output::sink::Sink;
+            sink.publish_with_image(&predictions, "", &frame)?;
+        }
+        frames.push(predictions);
         bar.inc(1);
     }
     bar.finish_and_clear();
     let secs = t_run.elapsed().as_secs_f64();
     write_predictions(&out, &frames)?;
+    #[cfg(feature = "ros2")]
+    if let Some(mut sink) = mcap {
+        use tricons::output::sink::Sink;
+        sink.close()?;
+    }
     log::info!(
         "{} frames, {estimated} instances estimated, {skipped} skipped (too few valid pixels), {:.1} ms/frame -> {}",
         frames.len(),
@@ -201,7 +228,9 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 fn default_out(recording: &Path) -> PathBuf {
-    let name = recording.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "replay".into());
+    // a bag file: its name without .mcap
+    let name = if recording.is_file() { recording.file_stem() } else { recording.file_name() };
+    let name = name.map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "replay".into());
     PathBuf::from("data/replay").join(format!("{name}.jsonl"))
 }
 

@@ -28,6 +28,7 @@ const DEFAULT_STATS_INTERVAL_S: f64 = 10.0;
     tricons serve --color /dev/video4 --depth /dev/video0 --camera camera.json\n  \
     tricons serve --recording tests/data/synthnocs-demo --loop 0 --out poses.jsonl\n  \
     tricons serve --config /etc/tricons/serve.json\n  \
+    tricons serve --recording bag.mcap --ros2 --mcap poses.mcap   # ROS 2 bag in, DDS + MCAP out\n  \
     curl -s localhost:7878/health; curl -sN localhost:7878/stream\n\n\
     Capture -> Mask R-CNN -> TriCons-Pose -> JSON Lines, each stage a thread, bounded queues between;\n\
     a live source drops its oldest frame when inference is behind (counted in /health).\n\
@@ -88,6 +89,96 @@ pub struct Args {
     /// Of --threads, those of the Mask R-CNN's matrix products [default: 1].
     #[arg(long, value_name = "N")]
     segmenter_threads: Option<usize>,
+    /// Also write the results as a ROS 2 bag (detections, markers, overlay images), completed at exit.
+    #[cfg(feature = "ros2")]
+    #[arg(long, value_name = "OUT.mcap")]
+    mcap: Option<PathBuf>,
+    #[cfg(feature = "ros2")]
+    #[command(flatten)]
+    #[serde(flatten)]
+    ros2: Ros2Args,
+}
+
+/// ROS 2 publishing flags of `tricons serve` (feature `ros2`).
+#[cfg(feature = "ros2")]
+#[derive(clap::Args, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ros2Args {
+    /// Publish vision_msgs/Detection3DArray and visualization_msgs/MarkerArray over DDS
+    /// (loopback only unless --ros2-interface).
+    #[arg(long)]
+    #[serde(default)]
+    ros2: bool,
+    /// Topic of the detections [default: /tricons/detections].
+    #[arg(long, value_name = "TOPIC")]
+    ros2_topic: Option<String>,
+    /// Topic of the RViz markers ('none': no markers) [default: /tricons/markers].
+    #[arg(long, value_name = "TOPIC")]
+    ros2_markers_topic: Option<String>,
+    /// DDS domain id [default: $ROS_DOMAIN_ID, else 0].
+    #[arg(long, value_name = "ID")]
+    ros2_domain: Option<u16>,
+    /// Also use this network interface (a name such as eth0, or its address) for discovery
+    /// and data: reachable from that network (logged at WARN) [default: loopback only].
+    #[arg(long, value_name = "IFACE")]
+    ros2_interface: Option<String>,
+    /// QoS reliability [default: reliable].
+    #[arg(long, value_enum)]
+    ros2_reliability: Option<tricons::output::ros2_sink::Ros2Reliability>,
+    /// QoS durability; transient_local keeps the last --ros2-depth samples for late subscribers [default: volatile].
+    #[arg(long, value_enum)]
+    ros2_durability: Option<tricons::output::ros2_sink::Ros2Durability>,
+    /// QoS history depth (keep last N) [default: 10].
+    #[arg(long, value_name = "N")]
+    ros2_depth: Option<usize>,
+}
+
+#[cfg(feature = "ros2")]
+impl Ros2Args {
+    fn or(self, other: Ros2Args) -> Ros2Args {
+        Ros2Args {
+            ros2: self.ros2 || other.ros2,
+            ros2_topic: self.ros2_topic.or(other.ros2_topic),
+            ros2_markers_topic: self.ros2_markers_topic.or(other.ros2_markers_topic),
+            ros2_domain: self.ros2_domain.or(other.ros2_domain),
+            ros2_interface: self.ros2_interface.or(other.ros2_interface),
+            ros2_reliability: self.ros2_reliability.or(other.ros2_reliability),
+            ros2_durability: self.ros2_durability.or(other.ros2_durability),
+            ros2_depth: self.ros2_depth.or(other.ros2_depth),
+        }
+    }
+
+    /// The publisher's settings, poses in `frame_id`.
+    fn config(&self, frame_id: &str) -> Result<tricons::output::ros2_sink::Ros2Config> {
+        use tricons::output::ros2_sink::{Ros2Config, Ros2Qos};
+        let d = Ros2Config::default();
+        let domain_id = match self.ros2_domain {
+            Some(id) => id,
+            None => match std::env::var("ROS_DOMAIN_ID") {
+                Ok(v) if !v.trim().is_empty() => {
+                    v.trim().parse().with_context(|| format!("ROS_DOMAIN_ID={v:?} is not a domain id"))?
+                }
+                _ => 0,
+            },
+        };
+        let q = Ros2Qos::default();
+        Ok(Ros2Config {
+            domain_id,
+            detections_topic: self.ros2_topic.clone().unwrap_or(d.detections_topic),
+            markers_topic: match self.ros2_markers_topic.as_deref() {
+                Some("none") => None,
+                Some(t) => Some(t.to_string()),
+                None => d.markers_topic,
+            },
+            interface: self.ros2_interface.clone(),
+            qos: Ros2Qos {
+                reliability: self.ros2_reliability.unwrap_or(q.reliability),
+                durability: self.ros2_durability.unwrap_or(q.durability),
+                depth: self.ros2_depth.unwrap_or(q.depth),
+            },
+            frame_id: frame_id.to_string(),
+        })
+    }
 }
 
 impl Args {
@@ -115,6 +206,10 @@ impl Args {
             stats_out: self.stats_out.or(file.stats_out),
             threads: self.threads.or(file.threads),
             segmenter_threads: self.segmenter_threads.or(file.segmenter_threads),
+            #[cfg(feature = "ros2")]
+            mcap: self.mcap.or(file.mcap),
+            #[cfg(feature = "ros2")]
+            ros2: self.ros2.or(file.ros2),
         })
     }
 }
@@ -153,6 +248,22 @@ pub fn run(args: Args) -> Result<()> {
         } else {
             Box::new(JsonLinesSink::append(out).with_context(|| "opening an output (--out)")?)
         });
+    }
+    #[cfg(feature = "ros2")]
+    {
+        let frame_id = source.camera().frame_id;
+        if let Some(path) = &args.mcap {
+            let sink =
+                tricons::output::mcap_sink::McapSink::create(path, &frame_id).with_context(|| "creating --mcap")?;
+            sinks.push(Box::new(sink));
+        }
+        if args.ros2.ros2 {
+            let config = args.ros2.config(&frame_id)?;
+            let sink = tricons::output::ros2_sink::Ros2Sink::start(config)
+                .with_context(|| "starting ROS 2 publishing (--ros2, --ros2-interface, --ros2-domain)")?;
+            log::info!("ros2: publishing {}", sink.describe());
+            sinks.push(Box::new(sink));
+        }
     }
     let server = if args.no_listen {
         None

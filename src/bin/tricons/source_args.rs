@@ -5,6 +5,46 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 use tricons::capture::{FrameSource, Pace, RecordingSource};
+use tricons::recording::BagTopics;
+
+/// Topics of a ROS 2 bag given as the recording (`--recording BAG.mcap`).
+#[derive(clap::Args, Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BagTopicArgs {
+    /// Colour topic of a bag: sensor_msgs/Image or CompressedImage (jpeg)
+    /// [default: /camera/camera/color/image_raw].
+    #[arg(long, value_name = "TOPIC")]
+    pub color_topic: Option<String>,
+    /// Depth topic of a bag, aligned to colour: 16UC1 mm or 32FC1 m
+    /// [default: /camera/camera/aligned_depth_to_color/image_raw].
+    #[arg(long, value_name = "TOPIC")]
+    pub depth_topic: Option<String>,
+    /// Colour CameraInfo topic of a bag [default: /camera/camera/color/camera_info].
+    #[arg(long, value_name = "TOPIC")]
+    pub camera_info_topic: Option<String>,
+}
+
+impl BagTopicArgs {
+    /// Fills every unset field from `other` (the config file).
+    pub fn or(self, other: BagTopicArgs) -> BagTopicArgs {
+        BagTopicArgs {
+            color_topic: self.color_topic.or(other.color_topic),
+            depth_topic: self.depth_topic.or(other.depth_topic),
+            camera_info_topic: self.camera_info_topic.or(other.camera_info_topic),
+        }
+    }
+
+    /// The topics, with `pair_tolerance_ms` (None: the default) for pairing colour and depth.
+    pub fn topics(&self, pair_tolerance_ms: Option<f64>) -> BagTopics {
+        let d = BagTopics::default();
+        BagTopics {
+            color: self.color_topic.clone().unwrap_or(d.color),
+            depth: self.depth_topic.clone().unwrap_or(d.depth),
+            camera_info: self.camera_info_topic.clone().unwrap_or(d.camera_info),
+            pair_tolerance_s: pair_tolerance_ms.map_or(d.pair_tolerance_s, |ms| ms / 1e3),
+        }
+    }
+}
 
 /// How a recording is replayed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Deserialize)]
@@ -35,12 +75,16 @@ pub struct SourceArgs {
     /// Frame rate asked of both nodes [default: 30].
     #[arg(long)]
     pub fps: Option<u32>,
-    /// Largest colour/depth timestamp difference paired, milliseconds [default: 15].
+    /// Largest colour/depth timestamp difference paired (cameras, bags), milliseconds [default: 15].
     #[arg(long, value_name = "MS")]
     pub pair_tolerance_ms: Option<f64>,
-    /// Replay this recording instead of a camera (tricons format or NOCS layout).
-    #[arg(long, value_name = "DIR", conflicts_with_all = ["color", "depth", "camera"])]
+    /// Replay this recording instead of a camera (tricons format, NOCS layout, or a ROS 2
+    /// bag `.mcap` with the --color-topic, --depth-topic, --camera-info-topic).
+    #[arg(long, value_name = "DIR|BAG.mcap", conflicts_with_all = ["color", "depth", "camera"])]
     pub recording: Option<PathBuf>,
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub bag: BagTopicArgs,
     /// Recording pace [default: recorded].
     #[arg(long, value_enum)]
     pub rate: Option<Rate>,
@@ -64,6 +108,7 @@ impl SourceArgs {
             fps: self.fps.or(other.fps),
             pair_tolerance_ms: self.pair_tolerance_ms.or(other.pair_tolerance_ms),
             recording: self.recording.or(other.recording),
+            bag: self.bag.or(other.bag),
             rate: self.rate.or(other.rate),
             speed: self.speed.or(other.speed),
             loops: self.loops.or(other.loops),
@@ -81,7 +126,8 @@ impl SourceArgs {
                 0 => None,
                 n => Some(n),
             };
-            let source = RecordingSource::open(dir, pace)
+            let topics = self.bag.topics(self.pair_tolerance_ms);
+            let source = RecordingSource::open_with(dir, pace, &topics)
                 .with_context(|| "opening the recording (--recording)")?
                 .looped(loops)
                 .with_annotations(annotations);
