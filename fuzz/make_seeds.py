@@ -58,3 +58,50 @@ put("onnx_graph", "upsample.onnx", graph(
     "up", helper.make_node("BilinearUpsample2x", ["x"], ["y"], domain="ai.tricons"),
     [f("x", [1, 2, 3, 3])], [f("y", [1, 2, 6, 6])]))
 put("onnx_graph", "relu.onnx", graph("relu", helper.make_node("Relu", ["x"], ["y"]), [f("x", [2, 3])], [f("y", [2, 3])]))
+
+# ROS 2 bags (MCAP): tiny 4x3 frames on the topics the ros2_bag harness reads, written by
+# the Python mcap-ros2-support writer (uncompressed, zstd, lz4; raw and jpeg colour).
+import io
+import struct
+import sys
+
+sys.path.insert(0, "tools")
+from mcap.writer import CompressionType  # noqa: E402
+from mcap_ros2.writer import Writer  # noqa: E402
+from PIL import Image as PilImage  # noqa: E402
+from tricons_pose.rosbag import CAMERA_INFO_DEF, COMPRESSED_DEF, IMAGE_DEF  # noqa: E402
+
+
+def bag(color, depth, compression):
+    out = io.BytesIO()
+    w = Writer(out, compression=compression)
+    img = w.register_msgdef("sensor_msgs/msg/Image", IMAGE_DEF)
+    jpg = w.register_msgdef("sensor_msgs/msg/CompressedImage", COMPRESSED_DEF)
+    info = w.register_msgdef("sensor_msgs/msg/CameraInfo", CAMERA_INFO_DEF)
+    for i in range(2):
+        header = {"stamp": {"sec": 5, "nanosec": i * 100_000_000}, "frame_id": "cam"}
+        k = [4.0, 0.0, 1.5, 0.0, 4.0, 1.0, 0.0, 0.0, 1.0]
+        w.write_message("/i", info, {"header": header, "height": 3, "width": 4, "k": k}, log_time=i)
+        pixels = bytes((7 * j + i) % 256 for j in range(36))
+        if color == "jpeg":
+            buf = io.BytesIO()
+            PilImage.frombytes("RGB", (4, 3), pixels).save(buf, format="JPEG")
+            w.write_message("/c", jpg, {"header": header, "format": "jpeg", "data": buf.getvalue()}, log_time=i)
+        else:
+            msg = {"header": header, "height": 3, "width": 4, "encoding": color, "step": 12, "data": pixels}
+            w.write_message("/c", img, msg, log_time=i)
+        if depth == "32FC1":
+            data = b"".join(struct.pack("<f", 0.5 + 0.01 * j) for j in range(12))
+            step = 16
+        else:
+            data = b"".join((500 + j).to_bytes(2, "little") for j in range(12))
+            step = 8
+        msg = {"header": header, "height": 3, "width": 4, "encoding": depth, "step": step, "data": data}
+        w.write_message("/d", img, msg, log_time=i)
+    w.finish()
+    return out.getvalue()
+
+
+put("ros2_bag", "rgb8_16uc1_none.mcap", bag("rgb8", "16UC1", CompressionType.NONE))
+put("ros2_bag", "bgr8_32fc1_zstd.mcap", bag("bgr8", "32FC1", CompressionType.ZSTD))
+put("ros2_bag", "jpeg_16uc1_lz4.mcap", bag("jpeg", "16UC1", CompressionType.LZ4))

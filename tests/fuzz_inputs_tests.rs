@@ -27,6 +27,9 @@ mod png;
 mod predictions;
 #[path = "../fuzz/harness/quant_profile.rs"]
 mod quant_profile;
+#[cfg(feature = "ros2")]
+#[path = "../fuzz/harness/ros2_bag.rs"]
+mod ros2_bag;
 #[path = "../fuzz/harness/segment_results.rs"]
 mod segment_results;
 #[path = "../fuzz/harness/segmenter_card.rs"]
@@ -49,6 +52,8 @@ const HARNESSES: &[(&str, Harness)] = &[
     ("png", png::run),
     ("predictions", predictions::run),
     ("quant_profile", quant_profile::run),
+    #[cfg(feature = "ros2")]
+    ("ros2_bag", ros2_bag::run),
     ("segment_results", segment_results::run),
     ("segmenter_card", segmenter_card::run),
     ("v4l2_decode", v4l2_decode::run),
@@ -118,4 +123,16 @@ fn the_shipped_seed_files_are_accepted() {
     tricons::recording::Manifest::read(&path("tests/data/synthnocs-demo/manifest.json")).unwrap();
     let seeds = inputs("predictions");
     assert!(tricons::output::read_predictions(&seeds[0]).unwrap().len() == 2);
+    #[cfg(feature = "ros2")]
+    for seed in inputs("ros2_bag") {
+        use tricons::recording::{BagTopics, McapBag, Recording};
+        let topics =
+            BagTopics { color: "/c".into(), depth: "/d".into(), camera_info: "/i".into(), ..BagTopics::default() };
+        let bag = McapBag::open(&seed, &topics).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(bag.len(), 2, "{}", seed.display());
+        for i in 0..2 {
+            let frame = bag.read_frame(i).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!((frame.color.width, frame.depth.data[0]), (4, 500), "{}", seed.display());
+        }
+    }
 }
