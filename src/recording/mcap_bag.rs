@@ -1,7 +1,8 @@
 //! ROS 2 bags stored as MCAP (rosbag2's default storage) as a [`Recording`].
 //!
 //! A bag holds a colour topic (`sensor_msgs/Image` rgb8/bgr8/rgba8/bgra8/mono8, or
-//! `sensor_msgs/CompressedImage` jpeg), a depth topic aligned to colour (`sensor_msgs/Image`
+//! `sensor_msgs/CompressedImage` jpeg; the colour topic's `/compressed` sibling is read when
+//! the colour topic itself has no messages), a depth topic aligned to colour (`sensor_msgs/Image`
 //! `16UC1`/`mono16` millimetres or `32FC1` metres) and the colour `sensor_msgs/CameraInfo`.
 //! Opening reads the file once, streaming (memory bounded by the largest chunk, not the
 //! file): it notes where each colour and depth message is and its header stamp, keeps the
@@ -38,6 +39,14 @@ const STASH_LIMIT: usize = 16;
 enum ColorKind {
     Raw,
     Compressed,
+}
+
+/// What the first pass over a bag found on a colour topic.
+#[derive(Default)]
+struct ColorStream {
+    times: Vec<Timed<usize>>,
+    kind: Option<ColorKind>,
+    frame_id: Option<String>,
 }
 
 /// A colour/depth pair: the messages' positions in file order and the colour stamp.
@@ -106,11 +115,12 @@ impl McapBag {
         let err = |m: String| Error::parse(path, None, m);
         // topic -> (schema name, message count), for errors
         let mut seen: BTreeMap<String, (String, u64)> = BTreeMap::new();
-        let mut color: Vec<Timed<usize>> = Vec::new();
+        // the colour topic, and its image_transport `/compressed` sibling (used when the
+        // colour topic itself has no messages, as in bags recorded with compressed colour)
+        let compressed_topic = format!("{}/compressed", topics.color);
+        let mut streams: [ColorStream; 2] = Default::default();
         let mut depth: Vec<Timed<usize>> = Vec::new();
-        let mut color_kind = None;
         let mut info: Option<CameraInfo> = None;
-        let mut frame_id = None;
         let mut reader = open_reader(path)?;
         for (pos, message) in reader.by_ref().enumerate() {
             let message = message.map_err(|e| mcap_error(path, pos, e))?;
@@ -119,7 +129,8 @@ impl McapBag {
             let entry = seen.entry(channel.topic.clone()).or_insert_with(|| (schema_name.clone(), 0));
             entry.1 += 1;
             let topic = channel.topic.as_str();
-            if topic != topics.color && topic != topics.depth && topic != topics.camera_info {
+            let color_slot = [&topics.color, &compressed_topic].iter().position(|t| t.as_str() == topic);
+            if color_slot.is_none() && topic != topics.depth && topic != topics.camera_info {
                 continue;
             }
             if channel.message_encoding != schema::MESSAGE_ENCODING {
@@ -139,20 +150,31 @@ impl McapBag {
             }
             let header = stamp_of(&message.data, &what)?;
             let timed = Timed { timestamp_s: header.stamp.as_seconds(), value: pos };
-            if topic == topics.color {
+            if let Some(slot) = color_slot {
                 let kind =
                     match expect_schema(path, topic, &schema_name, &[schema::IMAGE.0, schema::COMPRESSED_IMAGE.0])? {
                         0 => ColorKind::Raw,
                         _ => ColorKind::Compressed,
                     };
-                color_kind.get_or_insert(kind);
-                frame_id.get_or_insert(header.frame_id);
-                color.push(timed);
+                let stream = &mut streams[slot];
+                stream.kind.get_or_insert(kind);
+                stream.frame_id.get_or_insert(header.frame_id);
+                stream.times.push(timed);
             } else {
                 expect_schema(path, topic, &schema_name, &[schema::IMAGE.0])?;
                 depth.push(timed);
             }
         }
+        let mut topics = topics.clone();
+        let [raw, compressed] = streams;
+        let ColorStream { times: mut color, kind: color_kind, frame_id } =
+            if raw.times.is_empty() && !compressed.times.is_empty() {
+                log::info!("{}: no messages on {}, reading {compressed_topic}", path.display(), topics.color);
+                topics.color = compressed_topic;
+                compressed
+            } else {
+                raw
+            };
         let listing = || {
             if seen.is_empty() {
                 "it has no messages".to_string()
@@ -225,7 +247,7 @@ impl McapBag {
         let wanted = frames.iter().flat_map(|f| [f.color, f.depth]).collect();
         Ok(McapBag {
             path: path.to_path_buf(),
-            topics: topics.clone(),
+            topics,
             color_kind,
             intrinsics,
             frame_id: frame_id.unwrap_or_default(),
