@@ -182,3 +182,32 @@ def test_replay_with_the_published_results_equals_the_recording_with_its_masks(r
     res = subprocess.run([str(tricons_bin), "replay", "--recording", str(scene), "--masks", f"results:{bad}", "--out",
                           str(tmp_path / "y.jsonl"), "--no-eval"], capture_output=True, text=True, cwd=REPO)
     assert res.returncode != 0 and "pred_scores" in res.stderr and ".pkl" in res.stderr, res.stderr
+
+
+def test_mixed_training_on_a_layout_exports_and_replays(recording, layout, tricons_bin, tmp_path):
+    """The paper's recipe in miniature: `train --data <tricons recording> --real <NOCS split>`
+    (CAMERA + Real's 3:1 batches, here 1:1) with the real network for a few steps, export
+    the checkpoint, and replay the NOCS scene with the exported graph."""
+    from tricons_pose import export
+    from tricons_pose import train as T
+
+    root, scene = layout
+    cfg = ModelConfig.shipped().replace(n_points=256, n_keypoints=8, crop_size=32, name="tiny")
+    cfg_file = tmp_path / "tiny.json"
+    cfg_file.write_text(cfg.to_json())
+    run = tmp_path / "run"
+    args = T.parse_args(["--data", str(recording), "--real", str(scene.parent), "--real-per-batch", "2",
+                         "--config", str(cfg_file), "--out", str(run), "--batch-size", "4", "--max-steps", "2",
+                         "--threads", "1", "--workers", "0", "--seed", "3"])
+    summary = T.train(args)
+    assert summary["step"] == 2
+    assert export.main(["--checkpoint", str(run / "checkpoint.pt"), "--out", str(tmp_path / "m.onnx"),
+                        "--no-check"]) == 0
+    res = subprocess.run([str(tricons_bin), "replay", "--recording", str(scene), "--masks", "gt", "--model",
+                          str(tmp_path / "m.onnx"), "--out", str(tmp_path / "r.jsonl")],
+                         capture_output=True, text=True, cwd=REPO)
+    assert res.returncode == 0, res.stderr
+    lines = [json.loads(ln) for ln in (tmp_path / "r.jsonl").read_text().splitlines()]
+    assert len(lines) == len(Recording(recording).frames) and sum(len(ln["instances"]) for ln in lines) > 0
+    # the replay evaluated against the layout's own ground truth
+    assert (tmp_path / "r.eval.json").exists()

@@ -180,3 +180,40 @@ def test_keep_cycle_ends_saves_the_low_rate_weights(recording, tmp_path):
     _run(_args(recording, out, "--max-steps", "4", "--keep-cycle-ends"))  # cycle = 2 x 2 steps
     kept = torch.load(out / "model-step4.pt", weights_only=False)
     assert kept["step"] == 4 and kept["config"]["name"] == "test"
+
+
+def test_mixed_batches_take_each_sets_share_in_its_own_order():
+    """--real: every batch has per_a instances of set A then per_b of set B; each set is walked
+    in its own seeded permutation with wrap-around; a resume start skips exactly that many."""
+    s = T.MixedEpochSampler(n_a=5, n_b=3, per_a=3, per_b=1, steps=4, seed=7, epoch=2)
+    order = s.order()
+    assert order.shape == (16,)
+    batches = order.reshape(4, 4)
+    assert (batches[:, :3] < 5).all() and (batches[:, 3] >= 5).all()
+    # 12 draws from A: the permutation of 5 walked twice and then 2 more
+    a = batches[:, :3].reshape(-1)
+    assert sorted(a[:5]) == list(range(5)) and sorted(a[5:10]) == list(range(5)) and list(a[10:]) == list(a[:2])
+    assert sorted(batches[:3, 3]) == [5, 6, 7] and batches[3, 3] == batches[0, 3]
+    again = T.MixedEpochSampler(5, 3, 3, 1, 4, seed=7, epoch=2, start=8)
+    assert [i for _, i in again] == list(order[8:]) and len(again) == 8
+    assert list(T.MixedEpochSampler(5, 3, 3, 1, 4, seed=7, epoch=3).order()) != list(order)
+    with pytest.raises(ValueError):
+        T.MixedEpochSampler(5, 0, 3, 1, 4, seed=7)
+
+
+def test_mixed_training_resumes_exactly(recording, tmp_path):
+    """--data A --real B (here the same frames twice): batches mix, and an interrupted run
+    resumed gives the uninterrupted run's losses."""
+    mix = ("--real", str(recording), "--real-per-batch", "1", "--steps-per-epoch", "3")
+    full, part = tmp_path / "full", tmp_path / "part"
+    _run(_args(recording, full, "--max-steps", "5", *mix))
+    _run(_args(recording, part, "--max-steps", "2", *mix))
+    _run(_args(recording, part, "--max-steps", "5", "--resume", *mix))
+    a, b = _log(full), _log(part)
+    assert [r["step"] for r in a] == [1, 2, 3, 4, 5] and [r["epoch"] for r in a] == [0, 0, 0, 1, 1]
+    for ra, rb in zip(a, b):
+        assert (ra["step"], ra["lr"], ra["total"]) == (rb["step"], rb["lr"], rb["total"])
+    info = json.loads((full / "config.json").read_text())
+    assert info["steps_per_epoch"] == 3 and info["n_samples"] % 2 == 0
+    with pytest.raises(SystemExit):
+        _args(recording, full, "--real-per-batch", "1")  # without --real

@@ -19,6 +19,13 @@ half-cycle: 2 epochs). Writes to RUN_DIR:
 
 Data order is a permutation per epoch from numpy's default_rng((seed, epoch));
 per-sample randomness is default_rng((seed, epoch, index)) (tricons_pose.data).
+
+Mixed training as AG-Pose and the paper do on CAMERA25 + REAL275: ``--real DIR...``
+adds a second set of recordings and every batch takes ``--real-per-batch`` instances
+from it (default a quarter of the batch: AG-Pose's 30 synthetic + 10 real, the paper's
+batch of 24 as 18 + 6), the rest from ``--data``, each set in its own seeded permutation
+(default_rng((seed, epoch, 0)) and (seed, epoch, 1), wrapping around); an epoch is
+``--steps-per-epoch`` batches (default: one pass over ``--data``).
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from torch.utils.data import DataLoader, Sampler
 
 from .config import ModelConfig
 from .data import AugmentConfig, InstanceDataset, split_batch
+from .nocs_layout import open_any
 
 CONFIGS = ("shipped", "paper", "baseline", "without_sckd", "without_piga")
 LOG_FILE = "log.jsonl"
@@ -81,6 +89,37 @@ class EpochSampler(Sampler):
         return self.n - self.start
 
 
+class MixedEpochSampler(Sampler):
+    """Batches of ``per_a`` instances of set A (indices ``0..n_a``) then ``per_b`` of set B
+    (indices ``n_a..n_a + n_b``), ``steps`` batches per epoch, each set in its own seeded
+    permutation walked with wrap-around; yields (epoch, index) pairs from sample ``start``
+    (a multiple of the batch size when resuming), like :class:`EpochSampler`."""
+
+    def __init__(self, n_a: int, n_b: int, per_a: int, per_b: int, steps: int, seed: int, epoch: int = 0,
+                 start: int = 0):
+        if min(n_a, n_b, per_a, per_b, steps) < 1:
+            raise ValueError("both sets, both shares of the batch and the epoch length must be positive")
+        self.n_a, self.n_b, self.per_a, self.per_b, self.steps = n_a, n_b, per_a, per_b, steps
+        self.seed, self.epoch, self.start = seed, epoch, start
+
+    def order(self) -> np.ndarray:
+        perm_a = np.random.default_rng((self.seed, self.epoch, 0)).permutation(self.n_a)
+        perm_b = np.random.default_rng((self.seed, self.epoch, 1)).permutation(self.n_b) + self.n_a
+        out = np.empty(self.steps * (self.per_a + self.per_b), dtype=np.int64)
+        for b in range(self.steps):
+            at = b * (self.per_a + self.per_b)
+            out[at : at + self.per_a] = perm_a[(b * self.per_a + np.arange(self.per_a)) % self.n_a]
+            out[at + self.per_a : at + self.per_a + self.per_b] = perm_b[(b * self.per_b + np.arange(self.per_b)) % self.n_b]
+        return out
+
+    def __iter__(self) -> Iterator[tuple[int, int]]:
+        for i in self.order()[self.start :]:
+            yield (self.epoch, int(i))
+
+    def __len__(self) -> int:
+        return self.steps * (self.per_a + self.per_b) - self.start
+
+
 class EpochDataset(torch.utils.data.Dataset):
     """Wraps an :class:`InstanceDataset` so that ``ds[(epoch, i)]`` uses that epoch's RNG."""
 
@@ -99,7 +138,14 @@ class EpochDataset(torch.utils.data.Dataset):
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m tricons_pose.train", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", nargs="+", required=True, help="recording directories (tricons synth output)")
+    p.add_argument("--data", nargs="+", required=True,
+                   help="recordings: tricons recordings, NOCS-layout scenes or split directories (CAMERA/train)")
+    p.add_argument("--real", nargs="+", default=None, metavar="DIR",
+                   help="a second set mixed into every batch (REAL275's Real/train beside CAMERA/train)")
+    p.add_argument("--real-per-batch", type=int, default=0,
+                   help="instances of each batch from --real (default: a quarter of the batch)")
+    p.add_argument("--steps-per-epoch", type=int, default=0,
+                   help="batches per epoch with --real (default: one pass over --data)")
     p.add_argument("--config", default="shipped", help=f"{' | '.join(CONFIGS)} or a ModelConfig JSON file")
     p.add_argument("--out", required=True, help="run directory (log, checkpoints)")
     p.add_argument("--epochs", type=int, default=30)
@@ -126,6 +172,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.epochs < 1 or args.batch_size < 1:
         p.error("--epochs and --batch-size must be positive")
+    if args.real is None and (args.real_per_batch or args.steps_per_epoch):
+        p.error("--real-per-batch and --steps-per-epoch go with --real")
+    if args.real is not None:
+        args.real_per_batch = args.real_per_batch or max(1, args.batch_size // 4)
+        if not 0 < args.real_per_batch < args.batch_size:
+            p.error(f"--real-per-batch {args.real_per_batch} must be between 1 and the batch size - 1")
     return args
 
 
@@ -207,9 +259,20 @@ def train(
     # view 0 drives the pose supervision in forward_train and is kept isotropic there
     augment = AugmentConfig(n_views=n_views, isotropic_views=(0,), scale_axes="camera",
                             color_jitter=not args.no_color_jitter)
-    ds = InstanceDataset(args.data, n_points=cfg.n_points, crop_size=cfg.crop_size, seed=args.seed,
+    recs_a = [rec for r in args.data for rec in open_any(r)]
+    recs_b = [rec for r in (getattr(args, "real", None) or []) for rec in open_any(r)]
+    ds = InstanceDataset(recs_a + recs_b, n_points=cfg.n_points, crop_size=cfg.crop_size, seed=args.seed,
                          augment=augment, cache_dir=args.cache_dir)
-    steps_per_epoch = math.ceil(len(ds) / args.batch_size)
+    if recs_b:
+        n_a = sum(1 for ref in ds.index if ref.rec < len(recs_a))
+        per_b = args.real_per_batch
+        per_a = args.batch_size - per_b
+        steps_per_epoch = args.steps_per_epoch or math.ceil(n_a / per_a)
+        sampler: Sampler = MixedEpochSampler(n_a, len(ds) - n_a, per_a, per_b, steps_per_epoch, args.seed)
+        print(f"mixed batches: {per_a} of {n_a} instances (--data) + {per_b} of {len(ds) - n_a} (--real)", flush=True)
+    else:
+        steps_per_epoch = math.ceil(len(ds) / args.batch_size)
+        sampler = EpochSampler(len(ds), args.seed)
     cycle = args.cycle_steps or 2 * steps_per_epoch
 
     model = model_factory(cfg).to(device)
@@ -257,7 +320,6 @@ def train(
 
     # one loader for the whole run (persistent workers keep their frame cache); the
     # sampler is iterated in this process and told the epoch and start position
-    sampler = EpochSampler(len(ds), args.seed)
     loader = DataLoader(EpochDataset(ds), batch_size=args.batch_size, sampler=sampler, num_workers=args.workers,
                         persistent_workers=args.workers > 0, generator=torch.Generator().manual_seed(args.seed),
                         pin_memory=device.type == "cuda")

@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use tricons::pipeline::{DEFAULT_BACKOFF_INITIAL, DEFAULT_BACKOFF_MAX, StopHandle, reopen_with_backoff};
 use tricons::recording::{Manifest, RecordingWriter, WriteMode};
 
-use crate::source_args::{SourceArgs, stop_on_signals};
+use crate::source_args::{BagTopicArgs, SourceArgs, stop_on_signals};
 
 /// Arguments of `tricons record`.
 #[derive(clap::Args)]
@@ -20,6 +20,8 @@ use crate::source_args::{SourceArgs, stop_on_signals};
 pub struct Args {
     #[command(flatten)]
     source: SourceArgs,
+    #[command(flatten)]
+    bag: BagTopicArgs,
     /// Output recording directory.
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -43,7 +45,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let mut source = args.source.open(args.annotations)?;
+    let mut source = args.source.open(args.annotations, &args.bag)?;
     let camera = source.camera();
     let mut manifest = Manifest::new(camera.color, camera.depth_scale_m);
     if !camera.is_registered() {

@@ -16,7 +16,7 @@ use tricons::pose::PoseEstimator;
 use tricons::segment::Segmenter;
 
 use crate::common::{DEFAULT_MODEL, DEFAULT_SEGMENTER, MaskSource};
-use crate::source_args::{SourceArgs, stop_on_signals};
+use crate::source_args::{BagTopicArgs, SourceArgs, stop_on_signals};
 
 /// Default seconds between two stats lines in the log.
 const DEFAULT_STATS_INTERVAL_S: f64 = 10.0;
@@ -41,6 +41,9 @@ pub struct Args {
     #[command(flatten)]
     #[serde(flatten)]
     source: SourceArgs,
+    #[command(flatten)]
+    #[serde(flatten)]
+    bag: BagTopicArgs,
     /// Pose model: card, graph, or int8 profile [default: the shipped model].
     #[arg(long)]
     model: Option<PathBuf>,
@@ -102,7 +105,6 @@ pub struct Args {
 /// ROS 2 publishing flags of `tricons serve` (feature `ros2`).
 #[cfg(feature = "ros2")]
 #[derive(clap::Args, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct Ros2Args {
     /// Publish vision_msgs/Detection3DArray and visualization_msgs/MarkerArray over DDS
     /// (loopback only unless --ros2-interface).
@@ -192,6 +194,7 @@ impl Args {
         Ok(Args {
             config: self.config,
             source: self.source.or(file.source),
+            bag: self.bag.or(file.bag),
             model: self.model.or(file.model),
             masks: self.masks.or(file.masks),
             segmenter: self.segmenter.or(file.segmenter),
@@ -217,7 +220,7 @@ impl Args {
 pub fn run(args: Args) -> Result<()> {
     let args = args.resolve()?;
     let masks = args.masks.unwrap_or(MaskSource::Model);
-    let source = args.source.open(masks == MaskSource::Gt)?;
+    let source = args.source.open(masks == MaskSource::Gt, &args.bag)?;
     let model = args.model.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
     let segmenter_threads = args.segmenter_threads.unwrap_or(crate::common::DEFAULT_SEGMENTER_THREADS);
     let (segment_threads, pose_threads) = split_threads(crate::common::threads(args.threads), segmenter_threads, masks);
@@ -351,4 +354,33 @@ fn stats_line(s: &StatsSnapshot) -> String {
         s.rss_kib as f64 / 1024.0,
         s.peak_rss_kib as f64 / 1024.0
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(json: &str) -> std::result::Result<Args, String> {
+        tricons::error::from_json_str(std::path::Path::new("serve.json"), json)
+            .map_err(|e: tricons::Error| e.to_string())
+    }
+
+    /// Keys of every flattened group (source, bag topics, ROS 2) are read from one config
+    /// object, and a key of none of them is still refused by name.
+    #[test]
+    fn config_keys_of_every_group_parse_and_unknown_keys_are_refused() {
+        let args = parse(r#"{"recording": "bag.mcap", "color_topic": "/c", "queue": 3}"#).unwrap();
+        assert_eq!(args.source.recording.as_deref(), Some(std::path::Path::new("bag.mcap")));
+        assert_eq!((args.bag.color_topic.as_deref(), args.queue), (Some("/c"), Some(3)));
+        #[cfg(feature = "ros2")]
+        {
+            let args = parse(r#"{"ros2": true, "ros2_durability": "transient_local", "mcap": "o.mcap"}"#).unwrap();
+            assert!(args.ros2.ros2);
+            assert_eq!(args.ros2.ros2_durability, Some(tricons::output::ros2_sink::Ros2Durability::TransientLocal));
+        }
+        for bad in [r#"{"bogus": 1}"#, r#"{"recording": "x", "colour_topic": "/c"}"#] {
+            let err = parse(bad).unwrap_err();
+            assert!(err.contains("serve.json") && err.contains("unknown field"), "{err}");
+        }
+    }
 }

@@ -7,9 +7,10 @@ use serde::Deserialize;
 use tricons::capture::{FrameSource, Pace, RecordingSource};
 use tricons::recording::BagTopics;
 
-/// Topics of a ROS 2 bag given as the recording (`--recording BAG.mcap`).
+/// Topics of a ROS 2 bag given as the recording (`--recording BAG.mcap`). Flattened beside
+/// [`SourceArgs`], not inside it: serde checks unknown config keys only across one level of
+/// flattened structs.
 #[derive(clap::Args, Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct BagTopicArgs {
     /// Colour topic of a bag: sensor_msgs/Image or CompressedImage (jpeg)
     /// [default: /camera/camera/color/image_raw].
@@ -82,9 +83,6 @@ pub struct SourceArgs {
     /// bag `.mcap` with the --color-topic, --depth-topic, --camera-info-topic).
     #[arg(long, value_name = "DIR|BAG.mcap", conflicts_with_all = ["color", "depth", "camera"])]
     pub recording: Option<PathBuf>,
-    #[command(flatten)]
-    #[serde(flatten)]
-    pub bag: BagTopicArgs,
     /// Recording pace [default: recorded].
     #[arg(long, value_enum)]
     pub rate: Option<Rate>,
@@ -108,15 +106,15 @@ impl SourceArgs {
             fps: self.fps.or(other.fps),
             pair_tolerance_ms: self.pair_tolerance_ms.or(other.pair_tolerance_ms),
             recording: self.recording.or(other.recording),
-            bag: self.bag.or(other.bag),
             rate: self.rate.or(other.rate),
             speed: self.speed.or(other.speed),
             loops: self.loops.or(other.loops),
         }
     }
 
-    /// Opens the source; `annotations`: also read ground truth (recordings only).
-    pub fn open(&self, annotations: bool) -> Result<Box<dyn FrameSource>> {
+    /// Opens the source; `annotations`: also read ground truth (recordings only); `bag`: the
+    /// topics of a ROS 2 bag given as the recording.
+    pub fn open(&self, annotations: bool, bag: &BagTopicArgs) -> Result<Box<dyn FrameSource>> {
         if let Some(dir) = &self.recording {
             let pace = match self.rate.unwrap_or(Rate::Recorded) {
                 Rate::Recorded => Pace::Recorded { speed: self.speed.unwrap_or(1.0) },
@@ -126,7 +124,7 @@ impl SourceArgs {
                 0 => None,
                 n => Some(n),
             };
-            let topics = self.bag.topics(self.pair_tolerance_ms);
+            let topics = bag.topics(self.pair_tolerance_ms);
             let source = RecordingSource::open_with(dir, pace, &topics)
                 .with_context(|| "opening the recording (--recording)")?
                 .looped(loops)
