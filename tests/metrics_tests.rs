@@ -6,8 +6,8 @@ use tricons::Category;
 use tricons::frame::{Intrinsics, RgbdFrame};
 use tricons::geometry::{Mat3, Pose, Vec3, rotation_axis_angle, rotation_y};
 use tricons::metrics::{
-    EvalConfig, EvalReport, IouMode, PoseThreshold, evaluate, evaluate_recording, iou_3d, pose_error, symmetric_iou_3d,
-    voc_ap,
+    EvalConfig, EvalReport, IouMode, PoseThreshold, evaluate, evaluate_recording, evaluate_recordings, iou_3d,
+    pose_error, symmetric_iou_3d, voc_ap,
 };
 use tricons::output::{FramePredictions, PredInstance};
 use tricons::recording::{FrameAnnotations, GtInstance, Recording};
@@ -415,6 +415,40 @@ fn mock(gt_per_frame: Vec<Option<Vec<GtInstance>>>) -> MockRecording {
 
 fn frame_preds(id: &str, instances: Vec<PredInstance>) -> FramePredictions {
     FramePredictions { frame: id.into(), timestamp_s: None, instances }
+}
+
+/// Scenes scored together give one AP over all their frames (the reference code's dataset
+/// AP), equal to scoring one recording that holds all the frames, and not the mean of the
+/// scenes' own APs.
+#[test]
+fn recordings_scored_together_equal_one_recording_with_all_their_frames() {
+    let (a, b) = (pose_at(0.0, 0.0, 0.2), pose_at(0.1, 0.0, 0.4));
+    let (ga, gb) =
+        (gt(Category::Can, a, size_of(Category::Can), true), gt(Category::Can, b, size_of(Category::Can), true));
+    // scene 1: its object found with a low score, plus a confident false positive; scene 2:
+    // its object found with a high score
+    let fp = pred(Category::Can, 0.9, pose_at(-0.3, 0.1, 0.0), size_of(Category::Can));
+    let s1 = mock(vec![Some(vec![ga.clone()])]);
+    let s2 = mock(vec![Some(vec![gb.clone()])]);
+    let p1 = vec![frame_preds("000000", vec![pred_of(&ga, 0.3), fp.clone()])];
+    let p2 = vec![frame_preds("000000", vec![pred_of(&gb, 0.95)])];
+    let whole =
+        MockRecording { ids: vec!["a".into(), "b".into()], gt: vec![Some(vec![ga.clone()]), Some(vec![gb.clone()])] };
+    let pw = vec![frame_preds("a", p1[0].instances.clone()), frame_preds("b", p2[0].instances.clone())];
+    let cfg = EvalConfig::standard(IouMode::Corrected);
+    let path = Path::new("p.jsonl");
+    let together = evaluate_recordings(&[(&s1, &p1, path), (&s2, &p2, path)], &cfg).unwrap();
+    let one = evaluate_recording(&whole, &pw, path, &cfg).unwrap();
+    assert_eq!(serde_json::to_value(&together).unwrap(), serde_json::to_value(&one).unwrap());
+    assert_eq!(together.frames_evaluated, 2);
+    let mean_of_scenes = (evaluate_recording(&s1, &p1, path, &cfg).unwrap().class_ap(Category::Can, "IoU50").unwrap()
+        + evaluate_recording(&s2, &p2, path, &cfg).unwrap().class_ap(Category::Can, "IoU50").unwrap())
+        / 2.0;
+    assert_ne!(together.class_ap(Category::Can, "IoU50"), Some(mean_of_scenes));
+    // each scene's checks still name its predictions file
+    let bad = vec![frame_preds("000009", vec![])];
+    let err = evaluate_recordings(&[(&s1, &p1, path), (&s2, &bad, Path::new("s2.jsonl"))], &cfg).unwrap_err();
+    assert!(err.to_string().contains("s2.jsonl"), "{err}");
 }
 
 #[test]

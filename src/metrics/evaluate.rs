@@ -246,7 +246,40 @@ pub fn evaluate_recording(
     pred_path: &Path,
     cfg: &EvalConfig,
 ) -> Result<EvalReport> {
+    evaluate_recordings(&[(rec, preds, pred_path)], cfg)
+}
+
+/// [`evaluate_recording`] over several recordings at once, each with its predictions file:
+/// one average precision over all their frames, as the NOCS reference code computes it over
+/// a dataset's scenes (REAL275's six test scenes), not a mean of per-scene results.
+pub fn evaluate_recordings(
+    sets: &[(&dyn Recording, &[FramePredictions], &Path)],
+    cfg: &EvalConfig,
+) -> Result<EvalReport> {
     cfg.validate()?;
+    let mut gts: Vec<Vec<GtInstance>> = Vec::new();
+    let mut pred_of_frame: Vec<&[PredInstance]> = Vec::new();
+    for &(rec, preds, pred_path) in sets {
+        let (g, lines) = ground_truth_and_lines(rec, preds, pred_path)?;
+        gts.extend(g);
+        pred_of_frame.extend(lines.iter().map(|k| k.map_or(&[][..], |k| preds[k].instances.as_slice())));
+    }
+    if gts.is_empty() {
+        return Err(Error::InvalidArgument("no recording to evaluate".into()));
+    }
+    Ok(evaluate(gts.iter().map(Vec::as_slice).zip(pred_of_frame), cfg))
+}
+
+/// Each frame's ground-truth instances, and the index of its predictions line (if any).
+type GroundTruthAndLines = (Vec<Vec<GtInstance>>, Vec<Option<usize>>);
+
+/// Every frame's ground truth, and the predictions line of each frame (if any): the checks
+/// [`evaluate_recording`] documents.
+fn ground_truth_and_lines(
+    rec: &dyn Recording,
+    preds: &[FramePredictions],
+    pred_path: &Path,
+) -> Result<GroundTruthAndLines> {
     if rec.is_empty() {
         return Err(Error::InvalidArgument(format!("{}: the recording has no frames to evaluate", rec.describe())));
     }
@@ -282,11 +315,7 @@ pub fn evaluate_recording(
             }
         }
     }
-    let frames = gts.iter().zip(&line_of_frame).map(|(g, k)| {
-        let p: &[PredInstance] = k.map_or(&[], |k| preds[k].instances.as_slice());
-        (g.as_slice(), p)
-    });
-    Ok(evaluate(frames, cfg))
+    Ok((gts, line_of_frame))
 }
 
 #[cfg(test)]

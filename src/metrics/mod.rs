@@ -22,7 +22,7 @@ pub mod report;
 
 pub use ap::voc_ap;
 pub use config::{DEFAULT_IOU_THRESHOLDS, DEFAULT_POSE_THRESHOLDS, EvalConfig, PoseThreshold, iou_metric_name};
-pub use evaluate::{POSE_IOU_GATE, evaluate, evaluate_recording, match_frames_by_timestamp};
+pub use evaluate::{POSE_IOU_GATE, evaluate, evaluate_recording, evaluate_recordings, match_frames_by_timestamp};
 pub use iou::{IouMode, SYMMETRY_STEPS, iou_3d, symmetric_iou_3d};
 pub use pose_error::pose_error;
 pub use report::{ClassResult, EvalReport, MetricValues};

@@ -302,7 +302,8 @@ def _weights_from_checkpoint(ck: dict, path: str, note: str | None) -> dict:
          "state_sha256": hashlib.sha256(
              b"".join(t.detach().numpy().tobytes() for t in ck["model"].values())).hexdigest()}
     if args:
-        w["training_args"] = {k: args[k] for k in ("data", "config", "epochs", "batch_size", "seed", "lr", "max_lr")
+        w["training_args"] = {k: args[k] for k in ("data", "config", "epochs", "batch_size", "seed", "lr", "max_lr",
+                                                "dinov2_checkpoint")
                               if k in args}
     if note:
         w["training_note"] = note
@@ -316,6 +317,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     src.add_argument("--checkpoint", help="model.pt or checkpoint.pt from tricons_pose.train")
     src.add_argument("--config", help="configuration name (shipped, paper, ...) or JSON file; needs --random-init")
     p.add_argument("--random-init", type=int, metavar="SEED", help="random weights from this seed (with --config)")
+    p.add_argument("--dinov2-checkpoint", metavar="PTH",
+                   help="with --config/--random-init: the official DINOv2 ViT-S/14 weights "
+                        "(dinov2_vits14_pretrain.pth) in the ViT of a 'dinov2' configuration")
     p.add_argument("--out", required=True, help="ONNX file to write; the card goes to <stem>.card.json")
     p.add_argument("--metrics", action="append", default=[], metavar="NAME=FILE",
                    help="a `tricons eval --json` report to put in the card (repeatable), e.g. published=...")
@@ -336,9 +340,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = build_config(args.config)
         model = random_model(cfg, args.random_init)
         weights = {"kind": "random", "seed": args.random_init}
+        if args.dinov2_checkpoint:
+            from .dinov2 import load_official_dinov2
+
+            try:
+                load_official_dinov2(model, args.dinov2_checkpoint)
+            except (OSError, ValueError) as e:
+                p.error(f"--dinov2-checkpoint: {e}")
+            with open(args.dinov2_checkpoint, "rb") as f:
+                weights["dinov2"] = {"file": os.path.basename(args.dinov2_checkpoint),
+                                     "sha256": hashlib.sha256(f.read()).hexdigest()}
     else:
         if args.random_init is not None:
             p.error("--random-init goes with --config, not --checkpoint")
+        if args.dinov2_checkpoint:
+            p.error("--dinov2-checkpoint goes with --config (a trained checkpoint holds its ViT weights)")
         model, cfg, ck = load_checkpoint(args.checkpoint)
         weights = _weights_from_checkpoint(ck, args.checkpoint, args.training_note)
     metrics = _parse_metrics(args.metrics)

@@ -169,6 +169,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         "fresh optimiser and schedule: fine-tuning on new data; ignored with --resume")
     p.add_argument("--keep-cycle-ends", action="store_true",
                    help="also keep model-step<N>.pt at the end of every learning-rate cycle (lowest rate)")
+    p.add_argument("--dinov2-checkpoint", default=None, metavar="PTH",
+                   help="official DINOv2 ViT-S/14 weights (dinov2_vits14_pretrain.pth, a local file) for the "
+                        "'dinov2' image encoder (paper config): loaded into the ViT, which is then frozen")
     args = p.parse_args(argv)
     if args.epochs < 1 or args.batch_size < 1:
         p.error("--epochs and --batch-size must be positive")
@@ -276,6 +279,15 @@ def train(
     cycle = args.cycle_steps or 2 * steps_per_epoch
 
     model = model_factory(cfg).to(device)
+    dinov2 = getattr(args, "dinov2_checkpoint", None)
+    if dinov2:
+        from .dinov2 import load_official_dinov2
+
+        try:
+            info = load_official_dinov2(model, dinov2)
+        except (OSError, ValueError) as e:
+            raise SystemExit(f"--dinov2-checkpoint: {e}")
+        print(f"DINOv2 weights: {info['tensors']} tensors from {dinov2}; the ViT is frozen", flush=True)
     opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=args.lr)
     sched = torch.optim.lr_scheduler.CyclicLR(opt, base_lr=args.lr, max_lr=args.max_lr, step_size_up=cycle,
                                               mode="triangular2", cycle_momentum=False)
@@ -287,6 +299,10 @@ def train(
         ck = torch.load(ckpt_path, map_location=device, weights_only=False)
         if ck["config"] != cfg.to_dict():
             raise SystemExit(f"--resume: {ckpt_path} was written with a different model configuration")
+        if bool((ck.get("args") or {}).get("dinov2_checkpoint")) != bool(dinov2):
+            # a frozen ViT changes the optimiser's parameter list
+            raise SystemExit(f"--resume: {ckpt_path}'s run {'had' if not dinov2 else 'did not have'} "
+                             "--dinov2-checkpoint; resume with the same setting")
         if ck["n_samples"] != len(ds):
             raise SystemExit(f"--resume: the data has {len(ds)} instances, the checkpoint's run had {ck['n_samples']}")
         model.load_state_dict(ck["model"])
