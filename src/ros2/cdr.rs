@@ -20,6 +20,21 @@ pub fn encode<T: Serialize>(message: &T) -> Result<Vec<u8>> {
 /// Reads a CDR payload (either byte order). `what` names the message in errors (the bag and
 /// topic). At most 3 bytes of padding may follow the message.
 pub fn decode<'de, T: Deserialize<'de>>(payload: &'de [u8], what: &str) -> Result<T> {
+    let (value, trailing) = decode_start(payload, what)?;
+    if trailing > 3 {
+        return Err(Error::InvalidArgument(format!("{what}: {trailing} bytes follow the message")));
+    }
+    Ok(value)
+}
+
+/// Reads the start of a CDR payload as `T` (e.g. the `Header` that begins most messages),
+/// ignoring what follows.
+pub fn decode_prefix<'de, T: Deserialize<'de>>(payload: &'de [u8], what: &str) -> Result<T> {
+    decode_start(payload, what).map(|(value, _)| value)
+}
+
+/// `T` from the start of the payload's body, and how many body bytes follow it.
+fn decode_start<'de, T: Deserialize<'de>>(payload: &'de [u8], what: &str) -> Result<(T, usize)> {
     let bad = |msg: String| Error::InvalidArgument(format!("{what}: {msg}"));
     if payload.len() < 4 {
         return Err(bad(format!("a CDR payload of {} bytes has no encapsulation header", payload.len())));
@@ -36,27 +51,7 @@ pub fn decode<'de, T: Deserialize<'de>>(payload: &'de [u8], what: &str) -> Resul
         }
     }
     .map_err(|e| bad(format!("not the expected message ({e})")))?;
-    if body.len() - used > 3 {
-        return Err(bad(format!("{} bytes follow the message", body.len() - used)));
-    }
-    Ok(value)
-}
-
-/// Reads the start of a CDR payload as `T` (e.g. the `Header` that begins most messages),
-/// ignoring what follows.
-pub fn decode_prefix<'de, T: Deserialize<'de>>(payload: &'de [u8], what: &str) -> Result<T> {
-    let bad = |msg: String| Error::InvalidArgument(format!("{what}: {msg}"));
-    if payload.len() < 4 {
-        return Err(bad(format!("a CDR payload of {} bytes has no encapsulation header", payload.len())));
-    }
-    let body = &payload[4..];
-    match [payload[0], payload[1]] {
-        [0, 1] => cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body),
-        [0, 0] => cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body),
-        r => return Err(bad(format!("encapsulation {:02x}{:02x} is not classic CDR", r[0], r[1]))),
-    }
-    .map(|(value, _)| value)
-    .map_err(|e| bad(format!("not the expected message ({e})")))
+    Ok((value, body.len().saturating_sub(used)))
 }
 
 #[cfg(test)]
