@@ -158,6 +158,12 @@ impl Ros2Sink {
     /// Joins the DDS domain and creates the publishers.
     pub fn start(config: Ros2Config) -> Result<Ros2Sink> {
         let networks = resolve_networks(config.interface.as_deref())?;
+        if netdev::get_interfaces().iter().any(|i| i.is_loopback() && i.is_multicast()) {
+            log::warn!(
+                "ros2: the loopback interface has the MULTICAST flag: RustDDS also sends its discovery \
+                 by multicast on it (the packets stay on this machine)"
+            );
+        }
         if let Some(name) = &config.interface {
             log::warn!("ros2: discovery and data also on {name} ({:?}): reachable from that network", &networks[1..]);
         }
