@@ -308,15 +308,17 @@ fn frames_without_objects_run_and_follow_threshold_and_size() {
 
 /// The score floor raised to the card's threshold before NMS and the mask head gives the
 /// same detections as the graph as exported filtered afterwards: labels, boxes and scores
-/// equal, masks equal off the pixels within 1e-5 of the mask threshold.
+/// equal, masks equal off the pixels within 1e-5 of the mask threshold (the card's duplicate
+/// suppression, a later step, is off here).
 #[test]
 fn raised_score_floor_keeps_exactly_the_detections_above_the_threshold() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    let mut seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    seg.set_duplicate_mask_iou(None);
     assert_eq!(seg.score_floor(), Some(0.05), "torchvision's box_score_thresh in the shipped graph");
     let (threshold, mask_t) = (seg.card().score_threshold, seg.card().mask_threshold);
     let mut kept_total = 0;
-    // one frame (24 detections above the graph's floor, 7 above the card's): this suite
+    // one frame (21 detections above the graph's floor, 8 above the card's): this suite
     // also runs under qemu in CI
     for image in ["tests/data/synthnocs-demo/000000_color.png"] {
         let img = tricons::image_io::read_color_png(&root.join(image), tricons::image_io::SizeLimit::Capped).unwrap();
