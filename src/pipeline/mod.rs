@@ -34,7 +34,7 @@ pub mod stages;
 pub mod stats;
 
 pub use queue::{BoundedQueue, WhenFull};
-pub use stages::{Detection, Estimate, GroundTruthMasks, PoseStage, Segment};
+pub use stages::{Detection, Estimate, GroundTruthMasks, PoseStage, PublishedMasks, Segment};
 pub use stats::{PipelineStats, SourceState, Stage, StatsSnapshot};
 
 use crate::capture::{FrameSource, SourceFrame};

@@ -12,6 +12,7 @@ use crate::output::PredInstance;
 use crate::pose::{PoseEstimator, Skipped};
 use crate::recording::FrameAnnotations;
 use crate::segment::Segmenter;
+use crate::segment::published::PublishedDetections;
 
 /// One instance to estimate: category, score, optional 2D box and full-image mask.
 #[derive(Clone, Debug, PartialEq)]
@@ -82,6 +83,27 @@ impl Segment for GroundTruthMasks {
         };
         let ann = frame.annotations.as_ref().ok_or_else(|| missing("no annotations"))?;
         detections_from_annotations(ann).ok_or_else(|| missing("annotations without an instance mask"))
+    }
+}
+
+/// Published Mask R-CNN detections (the result pickles distributed with SPD, DualPoseNet,
+/// AG-Pose), looked up by the frame's id in scene `scene`.
+pub struct PublishedMasks {
+    detections: PublishedDetections,
+    scene: String,
+}
+
+impl PublishedMasks {
+    /// The detections of `detections`' files for the frames of `scene` (the recording's name).
+    pub fn new(detections: PublishedDetections, scene: &str) -> PublishedMasks {
+        PublishedMasks { detections, scene: scene.to_string() }
+    }
+}
+
+impl Segment for PublishedMasks {
+    fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
+        let path = self.detections.file_for(&self.scene, &frame.id)?;
+        PublishedDetections::read(&path, frame.frame.color.width, frame.frame.color.height)
     }
 }
 

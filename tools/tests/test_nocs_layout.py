@@ -165,6 +165,13 @@ def test_replay_with_the_published_results_equals_the_recording_with_its_masks(r
             [(x["class"], x["R"], x["t"], x["s"]) for x in b["instances"]]
     # the boxes come from the pickles: (y1, x1, y2, x2) -> [x0, y0, x1, y1]
     assert all("box2d" in x for f in published for x in f["instances"])
+    # the pose service reads the same pickles (frame k samples from (seed, k) as replay's frame k)
+    served = tmp_path / "served.jsonl"
+    res = subprocess.run([str(tricons_bin), "serve", "--recording", str(scene), "--masks", f"results:{results}",
+                          "--rate", "max", "--no-listen", "--out", str(served), "--threads", "1"],
+                         capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert [json.loads(ln)["instances"] for ln in served.read_text().splitlines()] == [f["instances"] for f in published]
     # a directory without a frame's file names it
     lone = tmp_path / "partial"
     lone.mkdir()

@@ -26,14 +26,38 @@ pub fn threads(flag: Option<usize>) -> usize {
     flag.unwrap_or_else(available_threads).max(1)
 }
 
-/// Where the instance masks come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
+/// Where the instance masks come from: `model`, `gt` or `results:DIR` (flags and configs).
+#[derive(Clone, Debug, PartialEq, Eq, serde::Deserialize)]
+#[serde(try_from = "String")]
 pub enum MaskSource {
     /// The Mask R-CNN (--segmenter) on the colour image: the full pipeline.
     Model,
     /// The recording's ground-truth instance masks (isolates the pose model).
     Gt,
+    /// Published Mask R-CNN result pickles (`results_*_<scene>_<frame>.pkl`), as distributed
+    /// with SPD / DualPoseNet / AG-Pose: the detections of every published REAL275 table.
+    Results(std::path::PathBuf),
+}
+
+impl std::str::FromStr for MaskSource {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<MaskSource, String> {
+        match s {
+            "model" => Ok(MaskSource::Model),
+            "gt" => Ok(MaskSource::Gt),
+            _ => match s.strip_prefix("results:") {
+                Some(dir) if !dir.is_empty() => Ok(MaskSource::Results(dir.into())),
+                _ => Err(format!("{s:?}: expected model, gt or results:DIR")),
+            },
+        }
+    }
+}
+
+impl TryFrom<String> for MaskSource {
+    type Error = String;
+    fn try_from(s: String) -> std::result::Result<MaskSource, String> {
+        s.parse()
+    }
 }
 
 /// Frame `i`'s ground truth: its instances and their full-image masks (an error naming

@@ -17,7 +17,7 @@ use tricons::segment::Segmenter;
 
 use tricons::segment::published::PublishedDetections;
 
-use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING, DEFAULT_SEGMENTER};
+use crate::common::{DEFAULT_MODEL, DEFAULT_RECORDING, DEFAULT_SEGMENTER, MaskSource};
 use crate::progress;
 use crate::source_args::BagTopicArgs;
 
@@ -45,8 +45,8 @@ pub struct Args {
     /// Instance masks: `model` (the Mask R-CNN, --segmenter), `gt` (the recording's ground
     /// truth: the pose model alone) or `results:DIR` (published Mask R-CNN result pickles,
     /// `results_*_<scene>_<frame>.pkl`, as distributed with SPD / DualPoseNet / AG-Pose).
-    #[arg(long, default_value = "model", value_parser = parse_masks, value_name = "model|gt|results:DIR")]
-    masks: Masks,
+    #[arg(long, default_value = "model", value_parser = clap::value_parser!(MaskSource), value_name = "model|gt|results:DIR")]
+    masks: MaskSource,
     /// Mask R-CNN for `--masks model`: its card or graph (any torchvision export).
     #[arg(long, default_value = DEFAULT_SEGMENTER)]
     segmenter: PathBuf,
@@ -78,25 +78,6 @@ pub struct Args {
     segmenter_threads: usize,
 }
 
-/// Where `replay` takes its instance masks from.
-#[derive(Clone, Debug)]
-enum Masks {
-    Model,
-    Gt,
-    Results(PathBuf),
-}
-
-fn parse_masks(s: &str) -> std::result::Result<Masks, String> {
-    match s {
-        "model" => Ok(Masks::Model),
-        "gt" => Ok(Masks::Gt),
-        _ => match s.strip_prefix("results:") {
-            Some(dir) if !dir.is_empty() => Ok(Masks::Results(PathBuf::from(dir))),
-            _ => Err(format!("{s:?}: expected model, gt or results:DIR")),
-        },
-    }
-}
-
 /// The masks of a run, opened.
 enum MaskInput {
     Segmenter(Box<Segmenter>),
@@ -120,15 +101,15 @@ pub fn run(args: Args) -> Result<()> {
         rec.describe()
     );
     let masks = match &args.masks {
-        Masks::Model => {
+        MaskSource::Model => {
             let seg = Segmenter::load(&args.segmenter)
                 .and_then(|s| s.with_threads(args.segmenter_threads))
                 .with_context(|| "loading the segmenter (--segmenter)")?;
             log::info!("masks from {}", seg.onnx_path().display());
             MaskInput::Segmenter(Box::new(seg))
         }
-        Masks::Gt => MaskInput::GroundTruth,
-        Masks::Results(dir) => {
+        MaskSource::Gt => MaskInput::GroundTruth,
+        MaskSource::Results(dir) => {
             let published = PublishedDetections::open(dir).with_context(|| "opening --masks results:DIR")?;
             log::info!("masks from the result pickles in {}", dir.display());
             MaskInput::Published(published)

@@ -9,8 +9,8 @@ use serde::Deserialize;
 use tricons::output::http::{DEFAULT_LISTEN, HttpServer, HubSink, StreamHub};
 use tricons::output::sink::{JsonLinesSink, Sink};
 use tricons::pipeline::{
-    DEFAULT_CAPTURE_QUEUE, GroundTruthMasks, PipelineBuilder, PipelineStats, PoseStage, Segment, StatsSnapshot,
-    StopHandle,
+    DEFAULT_CAPTURE_QUEUE, GroundTruthMasks, PipelineBuilder, PipelineStats, PoseStage, PublishedMasks, Segment,
+    StatsSnapshot, StopHandle,
 };
 use tricons::pose::PoseEstimator;
 use tricons::segment::Segmenter;
@@ -47,8 +47,9 @@ pub struct Args {
     /// Pose model: card, graph, or int8 profile [default: the shipped model].
     #[arg(long)]
     model: Option<PathBuf>,
-    /// Instance masks: Mask R-CNN, or a recording's ground truth [default: model].
-    #[arg(long, value_enum)]
+    /// Instance masks: `model` (the Mask R-CNN), `gt` (a recording's ground truth) or
+    /// `results:DIR` (published Mask R-CNN result pickles of the recording's frames) [default: model].
+    #[arg(long, value_parser = clap::value_parser!(MaskSource), value_name = "model|gt|results:DIR")]
     masks: Option<MaskSource>,
     /// Mask R-CNN: card, graph, or int8 profile [default: the shipped one].
     #[arg(long)]
@@ -219,16 +220,28 @@ impl Args {
 
 pub fn run(args: Args) -> Result<()> {
     let args = args.resolve()?;
-    let masks = args.masks.unwrap_or(MaskSource::Model);
+    let masks = args.masks.clone().unwrap_or(MaskSource::Model);
     let source = args.source.open(masks == MaskSource::Gt, &args.bag)?;
     let model = args.model.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
     let segmenter_threads = args.segmenter_threads.unwrap_or(crate::common::DEFAULT_SEGMENTER_THREADS);
-    let (segment_threads, pose_threads) = split_threads(crate::common::threads(args.threads), segmenter_threads, masks);
+    let (segment_threads, pose_threads) =
+        split_threads(crate::common::threads(args.threads), segmenter_threads, &masks);
     let estimator = PoseEstimator::load(&model)
         .and_then(|e| e.with_threads(pose_threads))
         .with_context(|| "loading the pose model (--model)")?;
-    let segment: Box<dyn Segment> = match masks {
+    let segment: Box<dyn Segment> = match &masks {
         MaskSource::Gt => Box::new(GroundTruthMasks),
+        MaskSource::Results(dir) => {
+            let Some(recording) = &args.source.recording else {
+                anyhow::bail!(
+                    "--masks results:DIR goes with --recording (the result files are named by scene and frame)"
+                );
+            };
+            let scene = recording.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+            let published = tricons::segment::published::PublishedDetections::open(dir)
+                .with_context(|| "opening --masks results:DIR")?;
+            Box::new(PublishedMasks::new(published, scene))
+        }
         MaskSource::Model => {
             let path = args.segmenter.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_SEGMENTER));
             Box::new(
@@ -325,9 +338,9 @@ pub fn run(args: Args) -> Result<()> {
 
 /// (segment, pose) worker threads out of `total`, `segmenter` of them segmenting: the two
 /// stages run at the same time on different frames, so each gets its own share.
-fn split_threads(total: usize, segmenter: usize, masks: MaskSource) -> (usize, usize) {
+fn split_threads(total: usize, segmenter: usize, masks: &MaskSource) -> (usize, usize) {
     match masks {
-        MaskSource::Gt => (0, total.max(1)),
+        MaskSource::Gt | MaskSource::Results(_) => (0, total.max(1)),
         MaskSource::Model => {
             let segment = segmenter.clamp(1, total.max(1));
             (segment, total.saturating_sub(segment).max(1))
@@ -369,7 +382,9 @@ mod tests {
     /// object, and a key of none of them is still refused by name.
     #[test]
     fn config_keys_of_every_group_parse_and_unknown_keys_are_refused() {
-        let args = parse(r#"{"recording": "bag.mcap", "color_topic": "/c", "queue": 3}"#).unwrap();
+        let args =
+            parse(r#"{"recording": "bag.mcap", "color_topic": "/c", "queue": 3, "masks": "results:pkl"}"#).unwrap();
+        assert_eq!(args.masks, Some(MaskSource::Results("pkl".into())));
         assert_eq!(args.source.recording.as_deref(), Some(std::path::Path::new("bag.mcap")));
         assert_eq!((args.bag.color_topic.as_deref(), args.queue), (Some("/c"), Some(3)));
         #[cfg(feature = "ros2")]
@@ -382,5 +397,7 @@ mod tests {
             let err = parse(bad).unwrap_err();
             assert!(err.contains("serve.json") && err.contains("unknown field"), "{err}");
         }
+        let err = parse(r#"{"masks": "results:"}"#).unwrap_err();
+        assert!(err.contains("masks") && err.contains("results:DIR"), "{err}");
     }
 }
