@@ -112,8 +112,9 @@ impl Default for Ros2Config {
     }
 }
 
-/// The IPv4 addresses DDS may use: loopback, and the named interface's.
-pub fn resolve_networks(interface: Option<&str>) -> Result<Vec<IpAddr>> {
+/// The IPv4 addresses DDS may use: loopback, and the named interface's (looked up in
+/// `interfaces`, the machine's).
+pub fn resolve_networks(interface: Option<&str>, interfaces: &[netdev::Interface]) -> Result<Vec<IpAddr>> {
     let mut addrs = vec![IpAddr::V4(Ipv4Addr::LOCALHOST)];
     let Some(name) = interface else {
         return Ok(addrs);
@@ -122,7 +123,6 @@ pub fn resolve_networks(interface: Option<&str>) -> Result<Vec<IpAddr>> {
         addrs.push(ip);
         return Ok(addrs);
     }
-    let interfaces = netdev::get_interfaces();
     let Some(found) = interfaces.iter().find(|i| i.name == name) else {
         let names: Vec<&str> = interfaces.iter().map(|i| i.name.as_str()).collect();
         return Err(Error::InvalidArgument(format!(
@@ -157,8 +157,9 @@ fn dds_error(what: &str, e: impl std::fmt::Display) -> Error {
 impl Ros2Sink {
     /// Joins the DDS domain and creates the publishers.
     pub fn start(config: Ros2Config) -> Result<Ros2Sink> {
-        let networks = resolve_networks(config.interface.as_deref())?;
-        if netdev::get_interfaces().iter().any(|i| i.is_loopback() && i.is_multicast()) {
+        let interfaces = netdev::get_interfaces();
+        let networks = resolve_networks(config.interface.as_deref(), &interfaces)?;
+        if interfaces.iter().any(|i| i.is_loopback() && i.is_multicast()) {
             log::warn!(
                 "ros2: the loopback interface has the MULTICAST flag: RustDDS also sends its discovery \
                  by multicast on it (the packets stay on this machine)"

@@ -213,7 +213,7 @@ impl McapBag {
             }
             while let Some(pair) = pairer.pop_pair() {
                 frames.push(BagFrame {
-                    id: format!("{:06}", frames.len()),
+                    id: String::new(), // numbered below, in file order
                     color: pair.color.value,
                     depth: pair.depth.value,
                     timestamp_s: pair.color.timestamp_s,
@@ -316,8 +316,9 @@ impl McapBag {
             }
             ColorKind::Raw => {
                 let msg: Image = cdr::decode(payload, what)?;
-                check_size(&msg, w, h, what)?;
-                color_from_image(&msg).map_err(|m| Error::decode(what.to_string(), m))?
+                check_size(&msg, w, h)
+                    .and_then(|()| color_from_image(&msg))
+                    .map_err(|m| Error::decode(what.to_string(), m))?
             }
         };
         Ok(img)
@@ -326,10 +327,10 @@ impl McapBag {
     fn decode_depth(&self, payload: &[u8], what: &str) -> Result<DepthImage> {
         let (w, h) = (self.intrinsics.width, self.intrinsics.height);
         let msg: Image = cdr::decode(payload, what)?;
-        check_size(&msg, w, h, what).map_err(|e| {
-            Error::decode(what.to_string(), format!("{e}; is {} the depth aligned to colour?", self.topics.depth))
-        })?;
-        depth_from_image(&msg).map_err(|m| Error::decode(what.to_string(), m))
+        check_size(&msg, w, h)
+            .map_err(|m| format!("{m}; is {} the depth aligned to colour?", self.topics.depth))
+            .and_then(|()| depth_from_image(&msg))
+            .map_err(|m| Error::decode(what.to_string(), m))
     }
 }
 
@@ -353,12 +354,10 @@ fn intrinsics_of(info: &CameraInfo) -> std::result::Result<Intrinsics, String> {
     Ok(intrinsics)
 }
 
-fn check_size(msg: &Image, width: u32, height: u32, what: &str) -> Result<()> {
+/// The image has the camera info's size (the message for an error otherwise).
+fn check_size(msg: &Image, width: u32, height: u32) -> std::result::Result<(), String> {
     if (msg.width, msg.height) != (width, height) {
-        return Err(Error::decode(
-            what.to_string(),
-            format!("image is {}x{}, the camera info says {width}x{height}", msg.width, msg.height),
-        ));
+        return Err(format!("image is {}x{}, the camera info says {width}x{height}", msg.width, msg.height));
     }
     Ok(())
 }
