@@ -2,7 +2,7 @@
 # Speed benchmarks of the runtime against onnxruntime, all in one run on the same inputs
 # (docs/results.md, "Speed"). Needs a release build, tools/.venv and the standard-op pose
 # export (tools/README.md, "Export"):
-#   cd tools && python -m tricons_pose.export --checkpoint ../models/checkpoints/tricons-pose-v2/model-step6000.pt \
+#   cd tools && python -m tricons_pose.export --checkpoint ../models/checkpoints/tricons-pose-v2/model-step12000.pt \
 #       --standard-ops --out ../data/models/tricons-pose-standard.onnx
 # Usage: benches/speed.sh [OUT_DIR] (default data/bench/speed); BEFORE=path/to/old/tricons adds
 # the older binary's pose and segmenter numbers in the same run. RUNS (default 10).
@@ -38,7 +38,7 @@ log "tricons: pipeline float and int8, 1 and 2 threads"
 cd tools
 for t in 1 2; do
     log "onnxruntime: pose, $t thread(s)"
-    .venv/bin/python -m tricons_pose.bench --checkpoint ../models/checkpoints/tricons-pose-v2/model-step6000.pt \
+    .venv/bin/python -m tricons_pose.bench --checkpoint ../models/checkpoints/tricons-pose-v2/model-step12000.pt \
         --standard-onnx "../$standard" --runs "$runs" --threads "$t" --json "../$out/ort-pose-t$t.json" > /dev/null
     log "onnxruntime: segmenter, $t thread(s)"
     .venv/bin/python -m tricons_pose.maskrcnn bench --model ../models/maskrcnn-light.onnx --image "../$image" \

@@ -362,3 +362,153 @@ fn bilinear_upsample_equals_its_reference_and_the_exact_taps() {
     assert_eq!(&out[4..8], &[2.0, 3.0, 5.0, 6.0]);
     assert_eq!(&out[12..], &[8.0, 9.0, 11.0, 12.0]);
 }
+
+#[test]
+fn scatter_elements_equals_its_reference_and_the_onnx_examples() {
+    use tricons::ops::scatter_elements::{scatter_elements, scatter_elements_reference};
+    let mut rng = Rng::new(13);
+    let mut below = |n: usize| (rng.next_u64() % n.max(1) as u64) as usize;
+    // ranks 1-4, every axis, updates smaller than the data off the axis, negative and
+    // repeated indices (the last update in row-major order wins)
+    for case in 0..200 {
+        let rank = 1 + case % 4;
+        let data_shape: Vec<usize> = (0..rank).map(|_| 1 + below(5)).collect();
+        let axis = below(rank);
+        let updates_shape: Vec<usize> =
+            (0..rank).map(|d| if d == axis { 1 + below(6) } else { 1 + below(data_shape[d]) }).collect();
+        let n: usize = updates_shape.iter().product();
+        let len = data_shape[axis] as i64;
+        let indices: Vec<i64> = (0..n).map(|_| below(2 * len as usize) as i64 - len).collect();
+        let updates: Vec<f32> = (0..n).map(|i| i as f32 + 0.5).collect();
+        let data: Vec<f32> = (0..data_shape.iter().product::<usize>()).map(|i| -(i as f32)).collect();
+        let want = scatter_elements_reference(&data, &data_shape, &indices, &updates, &updates_shape, axis).unwrap();
+        let mut got = data.clone();
+        scatter_elements(&mut got, &data_shape, &indices, &updates, &updates_shape, axis).unwrap();
+        assert_eq!(got, want, "data {data_shape:?} updates {updates_shape:?} axis {axis}");
+    }
+    // the ONNX operator documentation's two examples
+    let mut data = vec![0f32; 9];
+    scatter_elements(&mut data, &[3, 3], &[1, 0, 2, 0, 2, 1], &[1.0, 1.1, 1.2, 2.0, 2.1, 2.2], &[2, 3], 0).unwrap();
+    assert_eq!(data, [2.0, 1.1, 0.0, 1.0, 0.0, 2.2, 0.0, 2.1, 1.2]);
+    let mut data = vec![1.0f32, 2.0, 3.0, 4.0, 5.0];
+    scatter_elements(&mut data, &[1, 5], &[1, 3], &[1.1, 2.1], &[1, 2], 1).unwrap();
+    assert_eq!(data, [1.0, 1.1, 3.0, 2.1, 5.0]);
+    // negative index counts from the end
+    let mut data = vec![0i64; 4];
+    scatter_elements(&mut data, &[4], &[-1, -4], &[7, 9], &[2], 0).unwrap();
+    assert_eq!(data, [9, 0, 0, 7]);
+    // bad input: an error, and nothing written
+    let mut data = vec![0f32; 4];
+    let err = scatter_elements(&mut data, &[4], &[1, 4], &[1.0, 2.0], &[2], 0).unwrap_err();
+    assert_eq!(err, OpError::IndexOutOfRange { op: "ScatterElements", index: 4, len: 4 });
+    assert_eq!(data, [0.0; 4], "an out-of-range index writes nothing");
+    assert!(scatter_elements(&mut data, &[2, 2], &[0; 3], &[0.0; 3], &[1, 3], 0).is_err(), "updates wider than data");
+    assert!(scatter_elements(&mut data, &[2, 2], &[0; 2], &[0.0; 2], &[2, 1], 2).is_err(), "axis out of range");
+    assert!(scatter_elements(&mut data, &[4], &[0; 2], &[0.0; 3], &[2], 0).is_err(), "updates length");
+}
+
+/// One-node ONNX graph `ScatterElements(data, indices, updates)` run by tract's own op and
+/// by this crate's (`ops::onnx_with_custom_ops`): the same bits.
+#[test]
+fn scatter_elements_node_equals_tracts_own() {
+    use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, OperatorSetIdProto, ValueInfoProto};
+    use tract_onnx::prelude::*;
+    fn model(axis: i64, reduction: &str, inputs: &[Tensor]) -> ModelProto {
+        use tract_onnx::pb::tensor_shape_proto::{Dimension, dimension};
+        use tract_onnx::pb::{TensorShapeProto, TypeProto, tensor_proto::DataType, type_proto};
+        let io = |name: &str| ValueInfoProto { name: name.into(), ..Default::default() };
+        let typed = |name: &str, t: &Tensor| {
+            let elem_type = match t.datum_type() {
+                DatumType::F32 => DataType::Float,
+                _ => DataType::Int64,
+            } as i32;
+            let dim = t
+                .shape()
+                .iter()
+                .map(|&d| Dimension { value: Some(dimension::Value::DimValue(d as i64)), ..Default::default() })
+                .collect();
+            let tensor = type_proto::Tensor { elem_type, shape: Some(TensorShapeProto { dim }) };
+            ValueInfoProto {
+                name: name.into(),
+                r#type: Some(TypeProto { value: Some(type_proto::Value::TensorType(tensor)), ..Default::default() }),
+                ..Default::default()
+            }
+        };
+        let attr = |name: &str| AttributeProto { name: name.into(), ..Default::default() };
+        let mut a = attr("axis");
+        a.r#type = tract_onnx::pb::attribute_proto::AttributeType::Int as i32;
+        a.i = axis;
+        let mut r = attr("reduction");
+        r.r#type = tract_onnx::pb::attribute_proto::AttributeType::String as i32;
+        r.s = reduction.as_bytes().to_vec();
+        let node = NodeProto {
+            name: "scatter".into(),
+            op_type: "ScatterElements".into(),
+            input: vec!["data".into(), "indices".into(), "updates".into()],
+            output: vec!["y".into()],
+            attribute: vec![a, r],
+            ..Default::default()
+        };
+        ModelProto {
+            ir_version: 8,
+            opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 18 }],
+            graph: Some(GraphProto {
+                node: vec![node],
+                input: vec![typed("data", &inputs[0]), typed("indices", &inputs[1]), typed("updates", &inputs[2])],
+                output: vec![io("y")],
+                ..Default::default()
+            }),
+            ..Default::default()
+        }
+    }
+    fn run(onnx: &tract_onnx::Onnx, m: &ModelProto, inputs: &[Tensor]) -> Tensor {
+        let model = onnx.model_for_proto_model(m).unwrap();
+        let plan = model.into_optimized().unwrap().into_runnable().unwrap();
+        let out = plan.run(inputs.iter().cloned().map(|t| t.into_tvalue()).collect()).unwrap();
+        out[0].clone().into_tensor()
+    }
+    let mut rng = Rng::new(14);
+    // the Mask R-CNN pattern: (R, C, 7, 7) pooled features of one FPN level scattered
+    // into the (N, C, 7, 7) result along axis 0 (indices broadcast over C, 7, 7)
+    let (n, r, c) = (12usize, 5usize, 8usize);
+    let rows: Vec<i64> = vec![3, 0, 11, 7, 5];
+    let idx: Vec<i64> = rows.iter().flat_map(|&i| std::iter::repeat_n(i, c * 49)).collect();
+    let upd: Vec<f32> = (0..r * c * 49).map(|_| (rng.next_u64() >> 40) as f32 / 1e5 - 80.0).collect();
+    let data = Tensor::zero::<f32>(&[n, c, 7, 7]).unwrap();
+    let cases: Vec<(i64, &str, Vec<Tensor>)> = vec![
+        (
+            0,
+            "none",
+            vec![
+                data.clone(),
+                Tensor::from_shape(&[r, c, 7, 7], &idx).unwrap(),
+                Tensor::from_shape(&[r, c, 7, 7], &upd).unwrap(),
+            ],
+        ),
+        (
+            -1,
+            "none",
+            vec![
+                Tensor::from_shape(&[2, 5], &[0i64, 1, 2, 3, 4, 5, 6, 7, 8, 9]).unwrap(),
+                Tensor::from_shape(&[2, 2], &[4i64, -5, 0, 0]).unwrap(),
+                Tensor::from_shape(&[2, 2], &[40i64, 50, 60, 70]).unwrap(),
+            ],
+        ),
+        (
+            1,
+            "add",
+            vec![
+                Tensor::from_shape(&[2, 3], &[1f32, 2.0, 3.0, 4.0, 5.0, 6.0]).unwrap(),
+                Tensor::from_shape(&[2, 2], &[0i64, 0, 2, 1]).unwrap(),
+                Tensor::from_shape(&[2, 2], &[0.5f32, 0.25, 8.0, 16.0]).unwrap(),
+            ],
+        ),
+    ];
+    for (axis, reduction, inputs) in cases {
+        let m = model(axis, reduction, &inputs);
+        let tract_own = run(&tract_onnx::onnx(), &m, &inputs);
+        let ours = run(&tricons::ops::onnx_with_custom_ops(), &m, &inputs);
+        assert_eq!(ours, tract_own, "axis {axis}, reduction {reduction}");
+        assert_ne!(ours, inputs[0], "the scatter changed the data (axis {axis})");
+    }
+}

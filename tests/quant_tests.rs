@@ -382,3 +382,34 @@ fn the_most_sensitive_nodes_go_float_and_the_rest_still_loads() {
     let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
     assert!(q.estimate(&frame, &refs, 0).unwrap().iter().any(|o| o.is_ok()));
 }
+
+/// The patch-at-a-time unfolding against the column-at-a-time reference: the same bytes on
+/// random geometries (kernels 1x1 to 5x3, strides, dilations, asymmetric padding, kernels
+/// wider than the padded image's interior).
+#[test]
+fn im2col_equals_its_reference_on_random_geometries() {
+    use tricons::ops::qconv::{im2col_u7, im2col_u7_reference};
+    let mut rng = tricons::rng::Rng::new(16);
+    let mut below = |n: u64| (rng.next_u64() % n) as usize;
+    let mut checked = 0;
+    for _ in 0..300 {
+        let g = ConvGeometry {
+            c_in: 1 + below(4),
+            h: 1 + below(9),
+            w: 1 + below(9),
+            kernel: [1 + below(5), 1 + below(3)],
+            strides: [1 + below(3), 1 + below(3)],
+            pads: [below(3), below(3), below(3), below(3)],
+            dilations: [1 + below(2), 1 + below(2)],
+        };
+        let Ok((ho, wo)) = g.output_hw() else { continue };
+        let x: Vec<u8> = (0..g.c_in * g.h * g.w).map(|_| below(128) as u8).collect();
+        let mut want = vec![0u8; ho * wo * g.patch_len()];
+        im2col_u7_reference(&x, &g, 200, &mut want).unwrap();
+        let mut got = vec![1u8; want.len()];
+        im2col_u7(&x, &g, 200, &mut got).unwrap();
+        assert_eq!(got, want, "{g:?}");
+        checked += 1;
+    }
+    assert!(checked > 150, "{checked} geometries fit");
+}

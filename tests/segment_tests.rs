@@ -383,3 +383,44 @@ fn published_result_pickles_written_by_python_read_exactly() {
     assert!(published.file_for("scene_1", "0000").unwrap_err().to_string().contains("no result file"));
     assert!(published.file_for("x", "p2").unwrap().ends_with("results_p2.pkl"));
 }
+
+/// The channels-last RoiAlign against the per-plane reference, bit for bit: both modes,
+/// both coordinate conventions, fixed and adaptive sampling, ROIs partly or wholly
+/// outside the map, several batch items.
+#[test]
+fn roi_align_channels_last_equals_the_reference_bit_for_bit() {
+    use tricons::ops::roi_align::roi_align_reference;
+    use tricons::rng::Rng;
+    let mut rng = Rng::new(15);
+    let mut uniform = |lo: f32, hi: f32| lo + (hi - lo) * ((rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32);
+    for (n, c, h, w) in [(1, 1, 1, 1), (1, 3, 5, 7), (2, 16, 9, 4), (1, 33, 12, 13)] {
+        let features: Vec<f32> = (0..n * c * h * w).map(|_| uniform(-3.0, 3.0)).collect();
+        let r = 9;
+        let mut rois = Vec::new();
+        for _ in 0..r {
+            let (x0, y0) = (uniform(-8.0, 2.0 * w as f32), uniform(-8.0, 2.0 * h as f32));
+            rois.extend([x0, y0, x0 + uniform(0.0, 2.0 * w as f32), y0 + uniform(0.0, 2.0 * h as f32)]);
+        }
+        let batch: Vec<i64> = (0..r).map(|i| (i % n) as i64).collect();
+        for mode in [PoolMode::Avg, PoolMode::Max] {
+            for half_pixel in [true, false] {
+                for sampling_ratio in [0, 2] {
+                    let p = RoiAlignParams {
+                        output_height: 3,
+                        output_width: 2,
+                        sampling_ratio,
+                        spatial_scale: 0.5,
+                        half_pixel,
+                        mode,
+                    };
+                    let mut want = vec![0f32; r * c * 6];
+                    roi_align_reference(&features, (n, c, h, w), &rois, &batch, &p, &mut want).unwrap();
+                    let mut got = vec![1f32; r * c * 6];
+                    roi_align(&features, (n, c, h, w), &rois, &batch, &p, &mut got).unwrap();
+                    let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&got), bits(&want), "{n}x{c}x{h}x{w} {p:?}");
+                }
+            }
+        }
+    }
+}

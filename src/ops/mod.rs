@@ -14,9 +14,10 @@
 //! | `ThreeNN`, `ThreeInterpolate` | [`three_nn`] |
 //! | `TriangleDescriptor` | [`triangle`] |
 //!
-//! Two standard ONNX operators are registered too, for the Mask R-CNN graph:
-//! [`roi_align`] (`RoiAlign`, which tract lacks) and [`nms`] (`NonMaxSuppression`,
-//! replacing tract's pairwise one with a grid kernel). Two more replace standard nodes
+//! Three standard ONNX operators are registered too, for the Mask R-CNN graph:
+//! [`roi_align`] (`RoiAlign`, which tract lacks), [`nms`] (`NonMaxSuppression`,
+//! replacing tract's pairwise one with a grid kernel) and [`scatter_elements`]
+//! (`ScatterElements`, replacing tract's per-element coordinate walk). Two more replace standard nodes
 //! tract runs slowly, put in by the pose loader's rewrite ([`crate::pose::rewrite`]):
 //! [`reduce_max`] (`ReduceMaxAxis` for a single-axis `ReduceMax`) and [`upsample`]
 //! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`).
@@ -38,6 +39,7 @@ pub mod qconv;
 pub mod qlinear;
 pub mod reduce_max;
 pub mod roi_align;
+pub mod scatter_elements;
 pub mod three_nn;
 pub mod tract_glue;
 pub mod triangle;
@@ -49,7 +51,7 @@ pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 /// exported graph, the two standard operators implemented here (`RoiAlign`,
 /// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
 /// replacements of the pose rewrite.
-pub const PROFILED_NODE_TYPES: [&str; 13] = [
+pub const PROFILED_NODE_TYPES: [&str; 14] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -63,12 +65,13 @@ pub const PROFILED_NODE_TYPES: [&str; 13] = [
     "QConv",
     "ReduceMaxAxis",
     "BilinearUpsample2x",
+    "ScatterElements",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
 pub const NODE_TYPES: &[&str] = PROFILED_NODE_TYPES.split_at(7).0;
 
-/// Register every `ai.tricons` operator, `RoiAlign` and the fast `NonMaxSuppression`
+/// Register every `ai.tricons` operator, `RoiAlign` and the fast `NonMaxSuppression` and `ScatterElements`
 /// with a tract ONNX loader.
 ///
 /// tract keys its op register by node type only (not domain); the `ai.tricons` names
@@ -84,6 +87,7 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("TriangleDescriptor", triangle::onnx::parse);
     reg.insert("RoiAlign", roi_align::onnx::parse);
     reg.insert("NonMaxSuppression", nms::onnx::parse);
+    reg.insert("ScatterElements", scatter_elements::onnx::parse);
     reg.insert("QLinear", qlinear::onnx::parse);
     reg.insert("QConv", qconv::onnx::parse);
     reg.insert("ReduceMaxAxis", reduce_max::onnx::parse);

@@ -408,6 +408,26 @@ impl Segmenter {
         self.card.duplicate_mask_iou = iou;
     }
 
+    /// Run the plan [`Self::segment`] runs once on `image`, timing every node: per node,
+    /// tract's optimised op name, the node's name and its wall time, in plan order.
+    pub fn profile_nodes(&self, image: &ColorImage) -> Result<Vec<(String, String, std::time::Duration)>> {
+        let err = |e: TractError| Error::Inference(format!("{e:#}"));
+        let plan = self.plan(image.width as usize, image.height as usize, Some(self.card.score_threshold))?;
+        let mut times = Vec::new();
+        let inputs: TVec<TValue> = tvec![self.input_tensor(image).into()];
+        tract_linalg::multithread::multithread_tract_scope(self.executor.clone(), || {
+            let mut state = tract_onnx::tract_core::plan::SimpleState::new(&plan)?;
+            state.run_plan_with_eval(inputs, |ctx, op_state, node, input| {
+                let start = std::time::Instant::now();
+                let out = tract_onnx::tract_core::plan::eval(ctx, op_state, node, input);
+                times.push((node.op().name().to_string(), node.name.clone(), start.elapsed()));
+                out
+            })
+        })
+        .map_err(err)?;
+        Ok(times)
+    }
+
     fn detect(&self, image: &ColorImage, min_score: Option<f32>) -> Result<RawDetections> {
         let (w, h) = (image.width as usize, image.height as usize);
         if w == 0 || h == 0 || image.data.len() != w * h * 3 {

@@ -21,6 +21,7 @@ use crate::progress;
     tricons bench                                        # shipped model, demo recording\n  \
     tricons bench --model data/models/tricons-pose-paper.card.json --runs 5 --json data/bench/paper.json\n  \
     tricons bench --segmenter models/maskrcnn-light.card.json --runs 10\n  \
+    tricons bench --segmenter models/maskrcnn-light.card.json --int8 models/maskrcnn-light.int8.json --profile-graph\n  \
     tricons bench --int8 models/tricons-pose.int8.json    # float and int8 side by side\n  \
     tricons bench --threads 1,2 --int8 models/tricons-pose.int8.json\n  \
     tricons bench --pipeline --model models/tricons-pose.int8.json --segmenter models/maskrcnn-light.int8.json --threads 1,2\n\n\
@@ -46,7 +47,8 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Also time every graph node once (batch 1 and the first frame's batch) and print the
-    /// operators taking the most time.
+    /// operators taking the most time; with --segmenter, every node of its plan (the int8
+    /// one when --int8 is given), by operator and the slowest nodes.
     #[arg(long)]
     profile_graph: bool,
     /// Benchmark this Mask R-CNN (card or graph) on the recording's first frame instead of
@@ -171,15 +173,14 @@ pub fn run(args: Args) -> Result<()> {
     }
     if let Some(seg) = &args.segmenter {
         let int8 = args.int8.as_deref();
-        return crate::bench_segment::run(
-            seg,
-            int8,
-            &args.recording,
-            &threads,
-            args.runs,
-            args.warmup,
-            args.json.as_deref(),
-        );
+        let opts = crate::bench_segment::Options {
+            threads: &threads,
+            runs: args.runs,
+            warmup: args.warmup,
+            json: args.json.as_deref(),
+            profile_graph: args.profile_graph,
+        };
+        return crate::bench_segment::run(seg, int8, &args.recording, &opts);
     }
     let rec = open_recording(&args.recording).with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();

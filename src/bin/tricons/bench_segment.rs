@@ -114,15 +114,22 @@ fn time_frames(
 }
 
 /// Benchmark `model` on the first frame of `recording`.
-pub fn run(
-    model: &Path,
-    int8: Option<&Path>,
-    recording: &Path,
-    threads: &[usize],
-    runs: usize,
-    warmup: usize,
-    json: Option<&Path>,
-) -> Result<()> {
+/// How `tricons bench --segmenter` measures.
+pub struct Options<'a> {
+    /// Worker thread counts to measure.
+    pub threads: &'a [usize],
+    /// Timed repetitions.
+    pub runs: usize,
+    /// Untimed repetitions first.
+    pub warmup: usize,
+    /// Also write the report here.
+    pub json: Option<&'a Path>,
+    /// Also time every node of the plan (`--profile-graph`).
+    pub profile_graph: bool,
+}
+
+pub fn run(model: &Path, int8: Option<&Path>, recording: &Path, opts: &Options<'_>) -> Result<()> {
+    let Options { threads, runs, warmup, json, profile_graph } = *opts;
     let rec = open_recording(recording).with_context(|| "opening the recording (--recording)")?;
     let frame = rec.read_frame(0)?;
     let (mut seg, load_s, plan_s, detections, times) = timed_segmenter(model, &frame, runs, warmup, true)?;
@@ -253,8 +260,54 @@ pub fn run(
             q.speedup
         );
     }
+    if profile_graph {
+        print_node_profile(quantized.as_ref().unwrap_or(&seg), &frame.color, runs.max(1))?;
+    }
     if let Some(path) = json {
         crate::bench::write_report(path, &report)?;
+    }
+    Ok(())
+}
+
+/// Time every node of the plan `segment` runs (mean of `runs` runs): the operators and
+/// the single nodes taking the most time.
+fn print_node_profile(seg: &Segmenter, image: &tricons::frame::ColorImage, runs: usize) -> Result<()> {
+    let mut per_node: Vec<(String, String, Duration)> = Vec::new();
+    for _ in 0..runs {
+        for (i, (op, node, t)) in seg.profile_nodes(image)?.into_iter().enumerate() {
+            match per_node.get_mut(i) {
+                Some(slot) => slot.2 += t,
+                None => per_node.push((op, node, t)),
+            }
+        }
+    }
+    let total: Duration = per_node.iter().map(|x| x.2).sum();
+    let mut per_op: std::collections::BTreeMap<&str, (usize, Duration)> = Default::default();
+    for (op, _, t) in &per_node {
+        let e = per_op.entry(op.as_str()).or_default();
+        e.0 += 1;
+        e.1 += *t;
+    }
+    let ms = |t: Duration| t.as_secs_f64() * 1e3 / runs as f64;
+    println!(
+        "node profile of {} ({} nodes, {:.1} ms/frame in nodes), by operator:",
+        seg.onnx_path().display(),
+        per_node.len(),
+        ms(total)
+    );
+    let mut ops: Vec<_> = per_op.into_iter().collect();
+    ops.sort_by_key(|x| std::cmp::Reverse(x.1.1));
+    for (op, (n, t)) in ops.iter().take(16) {
+        println!(
+            "  {op:<28} {n:>4} nodes  {:>8.2} ms  {:>5.1}%",
+            ms(*t),
+            100.0 * t.as_secs_f64() / total.as_secs_f64()
+        );
+    }
+    println!("slowest nodes:");
+    per_node.sort_by_key(|x| std::cmp::Reverse(x.2));
+    for (op, node, t) in per_node.iter().take(20) {
+        println!("  {:>8.2} ms  {op:<24} {node}", ms(*t));
     }
     Ok(())
 }

@@ -48,7 +48,56 @@ impl ConvGeometry {
 
 /// Unfold a u7 image `(c_in, h, w)` into patches `[ho * wo][c_in * kh * kw]`
 /// (columns ordered `(ci, ky, kx)`, as the weight rows), `pad_value` outside the image.
+///
+/// One output patch at a time, so the writes are contiguous (the reference's walk wrote
+/// each patch's bytes `c_in * kh * kw` apart, a cache line each); the reads stay within
+/// `kh` rows of each channel plane. The same bytes as [`im2col_u7_reference`].
 pub fn im2col_u7(x: &[u8], g: &ConvGeometry, pad_value: u8, out: &mut [u8]) -> OpResult {
+    let (ho, wo) = g.output_hw()?;
+    let k = g.patch_len();
+    check_len("QConv", "input", x.len(), g.c_in * g.h * g.w)?;
+    check_len("QConv", "patches", out.len(), ho * wo * k)?;
+    if k == 0 {
+        return Ok(());
+    }
+    let [kh, kw] = g.kernel;
+    let [sy, sx] = g.strides;
+    let [dy, dx] = g.dilations;
+    let (h, w) = (g.h as isize, g.w as isize);
+    let plane_len = g.h * g.w;
+    for (pos, patch) in out.chunks_exact_mut(k).enumerate() {
+        let (oy, ox) = (pos / wo, pos % wo);
+        let iy0 = (oy * sy) as isize - g.pads[0] as isize;
+        let ix0 = (ox * sx) as isize - g.pads[1] as isize;
+        let x_inside = ix0 >= 0 && ix0 + (((kw - 1) * dx) as isize) < w;
+        for (ci, rows) in patch.chunks_exact_mut(kh * kw).enumerate() {
+            let plane = &x[ci * plane_len..(ci + 1) * plane_len];
+            for (ky, dst) in rows.chunks_exact_mut(kw).enumerate() {
+                let iy = iy0 + (ky * dy) as isize;
+                if iy < 0 || iy >= h {
+                    dst.fill(pad_value);
+                    continue;
+                }
+                let line = &plane[iy as usize * g.w..(iy as usize + 1) * g.w];
+                if x_inside {
+                    for (kx, d) in dst.iter_mut().enumerate() {
+                        *d = line[ix0 as usize + kx * dx];
+                    }
+                } else {
+                    for (kx, d) in dst.iter_mut().enumerate() {
+                        let ix = ix0 + (kx * dx) as isize;
+                        *d = if ix >= 0 && ix < w { line[ix as usize] } else { pad_value };
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The reference unfolding ([`im2col_u7`]'s arguments): one `(ci, ky, kx)` column at a
+/// time over every output position, each byte's bounds checked on its own.
+pub fn im2col_u7_reference(x: &[u8], g: &ConvGeometry, pad_value: u8, out: &mut [u8]) -> OpResult {
     let (ho, wo) = g.output_hw()?;
     let k = g.patch_len();
     check_len("QConv", "input", x.len(), g.c_in * g.h * g.w)?;

@@ -8,5 +8,5 @@ pub mod kernel;
 pub mod onnx;
 pub mod tract_op;
 
-pub use kernel::{ConvGeometry, im2col_u7, qconv};
+pub use kernel::{ConvGeometry, im2col_u7, im2col_u7_reference, qconv};
 pub use onnx::QConv;

@@ -6,5 +6,5 @@ pub mod kernel;
 pub mod onnx;
 pub mod tract_op;
 
-pub use kernel::{PoolMode, RoiAlignParams, roi_align};
+pub use kernel::{PoolMode, RoiAlignParams, roi_align, roi_align_reference};
 pub use onnx::RoiAlign;
