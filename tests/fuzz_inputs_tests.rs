@@ -124,7 +124,7 @@ fn the_shipped_seed_files_are_accepted() {
     let seeds = inputs("predictions");
     assert!(tricons::output::read_predictions(&seeds[0]).unwrap().len() == 2);
     #[cfg(feature = "ros2")]
-    for seed in inputs("ros2_bag") {
+    for seed in inputs("ros2_bag").into_iter().filter(|p| !p.starts_with(root().join("fuzz/regressions"))) {
         use tricons::recording::{BagTopics, McapBag, Recording};
         let topics =
             BagTopics { color: "/c".into(), depth: "/d".into(), camera_info: "/i".into(), ..BagTopics::default() };

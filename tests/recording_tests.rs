@@ -409,6 +409,19 @@ mod ros2_bags {
     use tricons::ros2::msg::{CameraInfo, Header, Image, Time};
     use tricons::ros2::{cdr, schema};
 
+    /// The input the `ros2_bag` fuzz target found (a record overrunning its uncompressed
+    /// chunk makes mcap 0.26's reader subtract past zero): an error naming the bag, no panic.
+    #[test]
+    fn a_record_overrunning_its_chunk_is_an_error_not_a_panic() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fuzz/regressions/ros2_bag/record-overruns-uncompressed-chunk.mcap");
+        let topics =
+            BagTopics { color: "/c".into(), depth: "/d".into(), camera_info: "/i".into(), ..BagTopics::default() };
+        let Err(err) = McapBag::open(&path, &topics) else { panic!("a malformed bag opened") };
+        let msg = err.to_string();
+        assert!(msg.contains("record-overruns-uncompressed-chunk.mcap") && msg.contains("MCAP"), "{msg}");
+    }
+
     const BW: u32 = 8;
     const BH: u32 = 6;
 

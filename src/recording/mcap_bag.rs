@@ -90,6 +90,26 @@ fn open_reader(path: &Path) -> Result<mcap::io::MessageReader<BufReader<File>>> 
     Ok(mcap::io::MessageReader::new_with_options(BufReader::new(file), options))
 }
 
+/// The reader's next message, its error naming the bag. mcap 0.26's reader subtracts
+/// unchecked when a record inside an uncompressed chunk claims more bytes than the chunk
+/// has left (found by the `ros2_bag` fuzz target; a panic where overflow checks are on,
+/// a wrapped count and then an error elsewhere): a panic inside the reader becomes this
+/// bag's error, and the reader is not used again.
+fn next_message(
+    reader: &mut mcap::io::MessageReader<BufReader<File>>,
+    path: &Path,
+    read: usize,
+) -> Option<Result<mcap::Message<'static>>> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next())) {
+        Ok(item) => item.map(|m| m.map_err(|e| mcap_error(path, read, e))),
+        Err(_) => Some(Err(Error::parse(
+            path,
+            None,
+            format!("unreadable MCAP after {read} messages: a record overruns its chunk"),
+        ))),
+    }
+}
+
 fn mcap_error(path: &Path, read: usize, e: mcap::McapError) -> Error {
     let message = match e {
         mcap::McapError::UnexpectedEof => format!(
@@ -122,8 +142,11 @@ impl McapBag {
         let mut depth: Vec<Timed<usize>> = Vec::new();
         let mut info: Option<CameraInfo> = None;
         let mut reader = open_reader(path)?;
-        for (pos, message) in reader.by_ref().enumerate() {
-            let message = message.map_err(|e| mcap_error(path, pos, e))?;
+        let mut read = 0;
+        while let Some(message) = next_message(&mut reader, path, read) {
+            let message = message?;
+            let pos = read; // this message's index in the file
+            read += 1;
             let channel = &message.channel;
             let schema_name = channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default();
             let entry = seen.entry(channel.topic.clone()).or_insert_with(|| (schema_name.clone(), 0));
@@ -276,8 +299,12 @@ impl McapBag {
         };
         let last = a.max(b);
         while cursor.next <= last {
-            let message = match cursor.reader.next() {
-                Some(m) => m.map_err(|e| mcap_error(&self.path, cursor.next, e))?,
+            let message = match next_message(&mut cursor.reader, &self.path, cursor.next) {
+                Some(Ok(m)) => m,
+                Some(Err(e)) => {
+                    *guard = None; // reopened on the next read
+                    return Err(e);
+                }
                 None => {
                     return Err(Error::parse(&self.path, None, "the bag changed since it was opened (fewer messages)"));
                 }
