@@ -120,7 +120,7 @@ for arch in "${wanted[@]}"; do
         # docs/results.md). They run on the host in CI.
         # Without the `ros2` feature: its code is byte-level serialisation (CDR is little-endian
         # on every supported target) tested on the host, and RustDDS, ros2-client, mcap and
-        # the zstd/lz4 C libraries are a large share of a fresh aarch64 build in CI.
+        # the zstd/lz4 C libraries are a large part of what a fresh aarch64 build compiles.
         # --all-tests builds the default features.
         features=(--no-default-features --features v4l)
         skips=()
