@@ -104,12 +104,20 @@ fn every_harness_survives_its_seeds_and_regressions() {
 fn every_fuzz_target_has_a_harness_and_a_cargo_entry() {
     let manifest = std::fs::read_to_string(root().join("fuzz/Cargo.toml")).unwrap();
     let targets: Vec<&str> = HARNESSES.iter().map(|h| h.0).collect();
+    // Targets whose harness needs a feature this build lacks (the aarch64 qemu suite is
+    // built without `ros2`); the host's default build replays them.
+    let gated: &[&str] = if cfg!(feature = "ros2") { &[] } else { &["ros2_bag"] };
+    let mut found = 0;
     for entry in std::fs::read_dir(root().join("fuzz/fuzz_targets")).unwrap() {
         let name = entry.unwrap().path().file_stem().unwrap().to_string_lossy().into_owned();
-        assert!(targets.contains(&name.as_str()), "fuzz target {name} is not replayed here");
         assert!(manifest.contains(&format!("path = \"fuzz_targets/{name}.rs\"")), "{name} missing in fuzz/Cargo.toml");
+        if gated.contains(&name.as_str()) {
+            continue;
+        }
+        assert!(targets.contains(&name.as_str()), "fuzz target {name} is not replayed here");
+        found += 1;
     }
-    assert_eq!(std::fs::read_dir(root().join("fuzz/fuzz_targets")).unwrap().count(), targets.len());
+    assert_eq!(found, targets.len());
 }
 
 /// The shipped files parse: the seeds exercise the success paths, not only errors.
