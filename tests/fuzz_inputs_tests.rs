@@ -83,11 +83,26 @@ fn inputs(target: &str) -> Vec<PathBuf> {
     paths
 }
 
+/// Mutated inputs per target in the smoke run below (`TRICONS_FUZZ_SMOKE=N` for more).
+const SMOKE_MUTATIONS: usize = 48;
+
+/// One test, because the harnesses share the process's scratch directory: the seeds and
+/// regressions, their truncations, then a fuzz smoke run.
+///
+/// The smoke run is CI's fuzzing: libFuzzer's instrumented build of the 14 targets takes
+/// most of an hour of a core here (docs/results.md "Fuzzing"), more than CI's time, so CI
+/// runs the same harnesses on `SMOKE_MUTATIONS` deterministic mutations of their seeds per
+/// target instead (bit flips, boundary values in 1-8 byte fields, deletions, duplications,
+/// insertions, splices of two seeds; seeded by the target name, so a failure reproduces).
+/// It finds what a shallow mutation finds, without coverage guidance; `fuzz/run.sh` is the
+/// coverage-guided run. A panicking input is written to the temporary directory and named.
 #[test]
-fn every_harness_survives_its_seeds_and_regressions() {
+fn every_harness_survives_its_seeds_regressions_and_a_mutation_smoke_run() {
+    let mutations = std::env::var("TRICONS_FUZZ_SMOKE").ok().and_then(|v| v.parse().ok()).unwrap_or(SMOKE_MUTATIONS);
     for &(target, run) in HARNESSES {
         let paths = inputs(target);
         assert!(!paths.is_empty(), "{target}: no seed inputs");
+        let mut seeds = Vec::new();
         for path in paths {
             let data = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             run(&data);
@@ -95,9 +110,100 @@ fn every_harness_survives_its_seeds_and_regressions() {
             for cut in [0, 1, data.len() / 2, data.len().saturating_sub(1)] {
                 run(&data[..cut.min(data.len())]);
             }
+            seeds.push(data);
+        }
+        let mut rng = mutate::Rng::for_target(target);
+        for i in 0..mutations {
+            let data = mutate::mutated(&seeds, &mut rng);
+            if std::panic::catch_unwind(|| run(&data)).is_err() {
+                let kept = std::env::temp_dir().join(format!("tricons-fuzz-smoke-{target}-{i}.bin"));
+                std::fs::write(&kept, &data).unwrap();
+                panic!("{target}: mutation {i} panicked; the input is {}", kept.display());
+            }
         }
     }
     std::fs::remove_dir_all(scratch::dir()).unwrap();
+}
+
+/// The smoke run's mutator: a few stacked edits of one seed, as libFuzzer's default
+/// mutations do, from a seeded generator.
+mod mutate {
+    /// SplitMix64.
+    pub struct Rng(u64);
+
+    impl Rng {
+        /// Seeded by an FNV-1a hash of the target name.
+        pub fn for_target(target: &str) -> Self {
+            Self(target.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)))
+        }
+
+        pub fn next(&mut self) -> u64 {
+            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            z ^ (z >> 31)
+        }
+
+        /// Uniform in `0..n` (`n > 0`; the modulo bias is irrelevant here).
+        pub fn below(&mut self, n: usize) -> usize {
+            (self.next() % n as u64) as usize
+        }
+    }
+
+    /// Values at the edges of 8-64 bit fields (sizes, counts, offsets).
+    const BOUNDARY: [u64; 10] = [0, 1, 0x7f, 0x80, 0xff, 0x7fff, 0xffff, 0x7fff_ffff, 0xffff_ffff, u64::MAX];
+
+    pub fn mutated(seeds: &[Vec<u8>], rng: &mut Rng) -> Vec<u8> {
+        let mut data = seeds[rng.below(seeds.len())].clone();
+        for _ in 0..1 + rng.below(4) {
+            let len = data.len();
+            match rng.below(7) {
+                0 if len > 0 => {
+                    let at = rng.below(len);
+                    data[at] ^= 1 << rng.below(8);
+                }
+                1 if len > 0 => {
+                    let width = [1, 2, 4, 8][rng.below(4)].min(len);
+                    let at = rng.below(len - width + 1);
+                    let value = BOUNDARY[rng.below(BOUNDARY.len())];
+                    let bytes = if rng.below(2) == 0 { value.to_le_bytes() } else { value.to_be_bytes() };
+                    data[at..at + width].copy_from_slice(&bytes[..width]);
+                }
+                2 if len > 0 => {
+                    let at = rng.below(len);
+                    let n = 1 + rng.below((len - at).min(64));
+                    data.drain(at..at + n);
+                }
+                3 if len > 0 => {
+                    let at = rng.below(len);
+                    let n = 1 + rng.below((len - at).min(64));
+                    let copy = data[at..at + n].to_vec();
+                    let to = rng.below(len + 1);
+                    data.splice(to..to, copy);
+                }
+                4 => {
+                    let to = rng.below(len + 1);
+                    let n = 1 + rng.below(16);
+                    let bytes: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
+                    data.splice(to..to, bytes);
+                }
+                5 => {
+                    // the head of this input, the tail of another seed
+                    let other = &seeds[rng.below(seeds.len())];
+                    let cut = rng.below(len + 1);
+                    let from = rng.below(other.len() + 1);
+                    data.truncate(cut);
+                    data.extend_from_slice(&other[from..]);
+                }
+                _ => {
+                    let at = rng.below(len + 1);
+                    data[at..].iter_mut().for_each(|b| *b = b.wrapping_add(1));
+                }
+            }
+        }
+        data
+    }
 }
 
 #[test]
