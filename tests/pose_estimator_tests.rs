@@ -335,6 +335,27 @@ fn rotation_from_keypoints_follows_the_card_and_matches_pytorch() {
         }
     }
 
+    // `keypoint_fit: robust`: the refit without keypoints of residual above 3x the median;
+    // one keypoint moved far off (a background pixel inside a loose mask) pulls the plain fit
+    // and not the robust one
+    edit_card(&card, |v| v["keypoint_fit"] = serde_json::json!("robust"));
+    let robust_est = PoseEstimator::load(&card).unwrap();
+    let mut e = est.run_inputs(&fixture_inputs(&all[..1])).unwrap().remove(0).expect("estimated");
+    let clean = e.keypoint_rotation().unwrap();
+    let robust_clean = robust_est.camera_from_object(&e, tricons::Category::Mug).rotation;
+    assert!(angle_deg(&robust_clean, &clean) < 2.0, "{} deg", angle_deg(&robust_clean, &clean));
+    let far = e.keypoints_camera_m[0].map(|v| v + 0.5);
+    e.keypoints_camera_m[0] = far;
+    let pulled = est.camera_from_object(&e, tricons::Category::Mug).rotation;
+    let kept = robust_est.camera_from_object(&e, tricons::Category::Mug).rotation;
+    assert!(angle_deg(&kept, &robust_clean) < angle_deg(&pulled, &clean), "the robust fit drops the outlier");
+    edit_card(&card, |v| v["keypoint_fit"] = serde_json::json!("median"));
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("keypoint_fit"), "{err}");
+    edit_card(&card, |v| {
+        v.as_object_mut().unwrap().remove("keypoint_fit");
+    });
+
     // bad cards: an unknown class names the field; the list needs the keypoint outputs
     edit_card(&card, |v| v["rotation_from_keypoints"] = serde_json::json!(["cup"]));
     let err = PoseEstimator::load(&card).unwrap_err().to_string();

@@ -47,6 +47,23 @@ pub struct ModelCard {
     /// default) keeps the head's.
     #[serde(default)]
     pub rotation_from_keypoints: Vec<crate::category::Category>,
+    /// How that rotation is fitted (default: least squares over every keypoint).
+    #[serde(default)]
+    pub keypoint_fit: KeypointFit,
+}
+
+/// The fit of [`ModelCard::rotation_from_keypoints`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum KeypointFit {
+    /// Umeyama over every keypoint ([`crate::geometry::fit_similarity`]).
+    #[default]
+    LeastSquares,
+    /// The same, refitted once without the keypoints whose residual exceeds
+    /// [`crate::geometry::OUTLIER_MEDIAN_FACTOR`] times the median (a keypoint that landed
+    /// on background or a neighbour inside an imperfect mask;
+    /// [`crate::geometry::fit_similarity_robust`]).
+    Robust,
 }
 
 /// The graph file of a card.

@@ -9,7 +9,7 @@ use tract_onnx::prelude::*;
 use crate::error::{Error, Result};
 use crate::frame::RgbdFrame;
 use crate::geometry::{Mat3, Pose, Vec3};
-use crate::pose::card::{ModelCard, card_path_for};
+use crate::pose::card::{KeypointFit, ModelCard, card_path_for};
 use crate::pose::preprocess::{PoseInput, PreprocessConfig, build_input, prepare_instance, sample_indices};
 use crate::quant::rewrite::ApplyReport;
 use crate::quant::{ModelKind, QuantProfile};
@@ -34,10 +34,19 @@ impl PoseEstimate {
     /// to their camera-frame positions (Umeyama), `None` without NOCS outputs or for a
     /// degenerate keypoint spread.
     pub fn keypoint_rotation(&self) -> Option<Mat3> {
+        self.keypoint_rotation_with(KeypointFit::LeastSquares)
+    }
+
+    /// [`Self::keypoint_rotation`] with the card's choice of fit.
+    pub fn keypoint_rotation_with(&self, fit: KeypointFit) -> Option<Mat3> {
         let f = |p: &[f32; 3]| Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
         let nocs: Vec<Vec3> = self.keypoints_nocs.iter().map(f).collect();
         let camera: Vec<Vec3> = self.keypoints_camera_m.iter().map(f).collect();
-        crate::geometry::fit_similarity(&nocs, &camera).map(|fit| fit.pose.rotation)
+        match fit {
+            KeypointFit::LeastSquares => crate::geometry::fit_similarity(&nocs, &camera),
+            KeypointFit::Robust => crate::geometry::fit_similarity_robust(&nocs, &camera),
+        }
+        .map(|fit| fit.pose.rotation)
     }
 }
 
@@ -234,7 +243,9 @@ impl PoseEstimator {
         if !self.card.rotation_from_keypoints.contains(&class) {
             return head;
         }
-        estimate.keypoint_rotation().map_or(head, |rotation| Pose::new(rotation, head.translation_m))
+        estimate
+            .keypoint_rotation_with(self.card.keypoint_fit)
+            .map_or(head, |rotation| Pose::new(rotation, head.translation_m))
     }
 
     /// Where the card was read from.
