@@ -9,14 +9,19 @@
 //! with bias and ReLU), `int8+quantize` (the f32 input quantised first, as a layer fed with
 //! floats does), `int8-u7out` (output requantised for the next int8 layer) and, for the
 //! convolutions, `int8-nchw` (transposed output). Throughput is in multiply-adds (m * k * n).
-//! `qgemm-kernels` runs every kernel of the CPU on one shape.
+//! `qgemm-kernels` runs every kernel of the CPU on one shape. `qconv` runs whole int8
+//! convolutions (`tricons::ops::qconv`, f32 NCHW in and out, as the Mask R-CNN's `QConv`
+//! nodes) at the light Mask R-CNN's geometries: `qconv` in both patch orders against
+//! `qconv_reference` (the whole image unfolded in ONNX order), and the product alone.
 
 use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::ops::einsum::EinSum;
+use tricons::ops::qconv::{ConvGeometry, ConvLayer, PatchOrder, qconv, qconv_reference};
 use tricons::quant::gemm::{Kernel, Output, OutputStage, PackedWeights, qgemm, quantize_u7};
+use tricons::quant::{Int8Layer, LayerInput, LayerOutput, OutputFold, QParams};
 
 /// Deterministic values in [-1, 1).
 fn values(len: usize, seed: u64) -> Vec<f32> {
@@ -120,9 +125,58 @@ fn bench_kernels(c: &mut Criterion) {
     group.finish();
 }
 
+/// Whole int8 convolutions at the light Mask R-CNN's geometries (640x480 frames run at
+/// 448x320 after its resize).
+fn bench_qconv(c: &mut Criterion) {
+    let conv = |c_in, h, w, k, s, p| ConvGeometry {
+        c_in,
+        h,
+        w,
+        kernel: [k, k],
+        strides: [s, s],
+        pads: [p; 4],
+        dilations: [1, 1],
+    };
+    let cases = [
+        ("fpn3x3-128ch-40x56", conv(128, 40, 56, 3, 1, 1), 128),
+        ("maskhead3x3-128ch-14x14", conv(128, 14, 14, 3, 1, 1), 128),
+        ("stem3x3s2-3to16-320x448", conv(3, 320, 448, 3, 2, 1), 16),
+        ("pointwise-40to120-40x56", conv(40, 40, 56, 1, 1, 0), 120),
+        ("pointwise-960to128-10x14", conv(960, 10, 14, 1, 1, 0), 128),
+    ];
+    let mut group = c.benchmark_group("qconv");
+    for (label, g, n) in cases {
+        let (ho, wo) = g.output_hw().expect("geometry");
+        let k = g.patch_len();
+        group.throughput(Throughput::Elements((ho * wo * k * n) as u64));
+        let fold = OutputFold { post_scale: &vec![1.0; n], bias: &values(n, 6), relu: true };
+        let layer =
+            Int8Layer::new(&values(k * n, 7), k, n, &fold, QParams::from_range(-1.0, 1.0), None).expect("layer");
+        let x = values(g.c_in * g.h * g.w, 8);
+        let mut out = vec![0f32; n * ho * wo];
+        group.bench_function(BenchmarkId::new("reference", label), |b| {
+            b.iter(|| qconv_reference(&layer, LayerInput::F32(black_box(&x)), &g, &mut out).expect("qconv"))
+        });
+        for (name, order) in [("planar", PatchOrder::Planar), ("channels-last", PatchOrder::ChannelsLast)] {
+            let conv = ConvLayer::with_order(&layer, g.kernel, order).expect("layer");
+            group.bench_function(BenchmarkId::new(name, label), |b| {
+                b.iter(|| qconv(&conv, LayerInput::F32(black_box(&x)), &g, &mut out).expect("qconv"))
+            });
+        }
+        let fast = ConvLayer::new(&layer, g.kernel).expect("layer");
+        let patches = vec![64u8; ho * wo * k];
+        group.bench_function(BenchmarkId::new("product-only", label), |b| {
+            b.iter(|| {
+                fast.layer().run_u7(black_box(&patches), ho * wo, LayerOutput::F32Transposed(&mut out)).expect("gemm")
+            })
+        });
+    }
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(20);
-    targets = bench_qgemm, bench_kernels
+    targets = bench_qgemm, bench_kernels, bench_qconv
 }
 criterion_main!(benches);

@@ -512,3 +512,161 @@ fn scatter_elements_node_equals_tracts_own() {
         assert_ne!(ours, inputs[0], "the scatter changed the data (axis {axis})");
     }
 }
+
+/// Random depthwise geometries (kernels 1x1 to 5x5, strides 1 to 3, dilations, asymmetric
+/// padding, planes narrower than the kernel span): the row kernel gives the reference's bits.
+#[test]
+fn depthwise_equals_its_reference_bit_for_bit() {
+    use tricons::ops::conv_geometry::ConvGeometry;
+    use tricons::ops::depthwise::{depthwise, depthwise_reference, depthwise_rows};
+    let mut rng = Rng::new(18);
+    let mut below = |n: u64| (rng.next_u64() % n) as usize;
+    let mut checked = 0;
+    for _ in 0..300 {
+        let g = ConvGeometry {
+            c_in: 1 + below(5),
+            h: 1 + below(12),
+            w: 1 + below(12),
+            kernel: [1 + below(5), 1 + below(5)],
+            strides: [1 + below(3), 1 + below(3)],
+            pads: [below(3), below(3), below(3), below(3)],
+            dilations: [1 + below(2), 1 + below(2)],
+        };
+        let Ok((ho, wo)) = g.output_hw() else { continue };
+        let value = |below: &mut dyn FnMut(u64) -> usize| below(2001) as f32 / 100.0 - 10.0;
+        let x: Vec<f32> = (0..g.c_in * g.h * g.w).map(|_| value(&mut below)).collect();
+        let w: Vec<f32> = (0..g.patch_len()).map(|_| value(&mut below)).collect();
+        let b: Vec<f32> = (0..g.c_in).map(|_| value(&mut below)).collect();
+        let mut want = vec![0f32; g.c_in * ho * wo];
+        depthwise_reference(&x, &w, &b, &g, &mut want).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        // the best build of the CPU, and the baseline one
+        for kernel in [depthwise, depthwise_rows] {
+            let mut got = vec![f32::NAN; want.len()];
+            kernel(&x, &w, &b, &g, &mut got).unwrap();
+            assert_eq!(bits(&got), bits(&want), "{g:?}");
+        }
+        checked += 1;
+    }
+    assert!(checked > 150, "{checked} geometries fit");
+    // wrong lengths are errors, not panics
+    let g = ConvGeometry { c_in: 2, h: 3, w: 3, kernel: [3, 3], strides: [1, 1], pads: [1; 4], dilations: [1, 1] };
+    assert!(depthwise(&[0.0; 18], &[0.0; 17], &[0.0; 2], &g, &mut [0.0; 18]).is_err());
+    assert!(depthwise(&[0.0; 18], &[0.0; 18], &[0.0; 2], &g, &mut [0.0; 17]).is_err());
+}
+
+/// A depthwise `Conv` node (MobileNetV3's 5x5 stride-2 and 3x3 stride-1 forms, with and
+/// without bias) through the Mask R-CNN loader's rewrite: replaced by `DepthwiseConv2d`,
+/// which gives the reference kernel's bits and agrees with tract's own `Conv` on the
+/// unrewritten graph within the rounding of a differently ordered sum of the same
+/// products (`(taps + 1) * eps * (sum |w x| + |b|)`, twice for both sides); a grouped
+/// `Conv` that is not depthwise is left alone.
+#[test]
+fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
+    use tract_onnx::pb::tensor_shape_proto::{Dimension, dimension};
+    use tract_onnx::pb::{
+        GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, TensorShapeProto, TypeProto,
+        ValueInfoProto, tensor_proto::DataType, type_proto,
+    };
+    use tract_onnx::prelude::*;
+    use tricons::ops::conv_geometry::ConvGeometry;
+    use tricons::ops::proto::{a_int, a_ints};
+    let tensor = |name: &str, dims: &[usize], v: &[f32]| TensorProto {
+        name: name.into(),
+        dims: dims.iter().map(|&d| d as i64).collect(),
+        data_type: DataType::Float as i32,
+        float_data: v.to_vec(),
+        ..Default::default()
+    };
+    let typed = |name: &str, dims: &[usize]| {
+        let dim = dims
+            .iter()
+            .map(|&d| Dimension { value: Some(dimension::Value::DimValue(d as i64)), ..Default::default() })
+            .collect();
+        let t = type_proto::Tensor { elem_type: DataType::Float as i32, shape: Some(TensorShapeProto { dim }) };
+        ValueInfoProto {
+            name: name.into(),
+            r#type: Some(TypeProto { value: Some(type_proto::Value::TensorType(t)), ..Default::default() }),
+            ..Default::default()
+        }
+    };
+    let mut rng = Rng::new(19);
+    let mut value = || (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0;
+    for (c, k, s, bias, group_in) in [(6, 5, 2, true, 1), (4, 3, 1, false, 1), (4, 3, 1, true, 2)] {
+        let (h, w, p) = (11, 9, k / 2);
+        let x: Vec<f32> = (0..2 * c * h * w).map(|_| value()).collect();
+        let wt: Vec<f32> = (0..c * group_in * k * k).map(|_| value()).collect();
+        let b: Vec<f32> = (0..c).map(|_| value()).collect();
+        let mut inputs = vec!["x".to_string(), "w".into()];
+        let mut initializer = vec![tensor("w", &[c, group_in, k, k], &wt)];
+        if bias {
+            inputs.push("b".into());
+            initializer.push(tensor("b", &[c], &b));
+        }
+        let node = NodeProto {
+            name: "dw".into(),
+            op_type: "Conv".into(),
+            input: inputs,
+            output: vec!["y".into()],
+            attribute: vec![
+                a_int("group", (c / group_in) as i64),
+                a_ints("kernel_shape", vec![k as i64; 2]),
+                a_ints("strides", vec![s as i64; 2]),
+                a_ints("pads", vec![p as i64; 4]),
+            ],
+            ..Default::default()
+        };
+        let g = ConvGeometry { c_in: c, h, w, kernel: [k, k], strides: [s, s], pads: [p; 4], dilations: [1, 1] };
+        let (ho, wo) = g.output_hw().unwrap();
+        let model = ModelProto {
+            ir_version: 8,
+            opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
+            graph: Some(GraphProto {
+                node: vec![node],
+                initializer,
+                input: vec![typed("x", &[2, c, h, w])],
+                output: vec![typed("y", &[2, c, ho, wo])],
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        let run = |m: &ModelProto| -> Vec<f32> {
+            let onnx = tricons::ops::onnx_with_custom_ops();
+            let plan = onnx.model_for_proto_model(m).unwrap().into_optimized().unwrap().into_runnable().unwrap();
+            let out = plan.run(tvec![Tensor::from_shape(&[2, c, h, w], &x).unwrap().into_tvalue()]).unwrap();
+            out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()
+        };
+        let tract_own = run(&model);
+        let mut rewritten = model.clone();
+        let report = tricons::segment::rewrite(&mut rewritten).unwrap();
+        if group_in != 1 {
+            assert_eq!(report.depthwise, 0, "a grouped Conv with 2 channels per group is not depthwise");
+            continue;
+        }
+        assert_eq!(report.depthwise, 1);
+        assert_eq!(rewritten.graph.as_ref().unwrap().node[0].op_type, "DepthwiseConv2d");
+        let ours = run(&rewritten);
+        let b = if bias { b.clone() } else { vec![0.0; c] };
+        let per = c * ho * wo;
+        let mut want = vec![0f32; 2 * per];
+        for i in 0..2 {
+            let xi = &x[i * c * h * w..(i + 1) * c * h * w];
+            tricons::ops::depthwise::depthwise_reference(xi, &wt, &b, &g, &mut want[i * per..(i + 1) * per]).unwrap();
+        }
+        assert!(ours.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()), "the rewritten node's bits");
+        // |sum| of the products per output, for the bound
+        let mut mag = vec![0f32; 2 * per];
+        let abs_x: Vec<f32> = x.iter().map(|v| v.abs()).collect();
+        let abs_w: Vec<f32> = wt.iter().map(|v| v.abs()).collect();
+        let abs_b: Vec<f32> = b.iter().map(|v| v.abs()).collect();
+        for i in 0..2 {
+            let xi = &abs_x[i * c * h * w..(i + 1) * c * h * w];
+            tricons::ops::depthwise::depthwise_reference(xi, &abs_w, &abs_b, &g, &mut mag[i * per..(i + 1) * per])
+                .unwrap();
+        }
+        let taps = (k * k + 1) as f32;
+        for (j, ((a, t), m)) in ours.iter().zip(&tract_own).zip(&mag).enumerate() {
+            assert!((a - t).abs() <= 2.0 * taps * f32::EPSILON * m, "output {j}: ours {a}, tract {t} (|sum| {m})");
+        }
+    }
+}

@@ -8,7 +8,7 @@ use std::fs;
 use std::path::Path;
 
 use common::cli::{assert_clean_failure, demo_subset, repo, stderr, tricons};
-use tricons::ops::qconv::{ConvGeometry, qconv};
+use tricons::ops::qconv::{ConvGeometry, ConvLayer, PatchOrder, qconv, qconv_reference};
 use tricons::pose::PoseEstimator;
 use tricons::quant::calibrate::{ProfileTarget, QuantizeOptions, build_profile};
 use tricons::quant::params::TensorStats;
@@ -169,7 +169,7 @@ fn qconv_matches_a_direct_integer_convolution_exactly() {
         layer.quantize_input(&x, &mut x_q).unwrap();
         let (ho, wo) = g.output_hw().unwrap();
         let mut out = vec![0f32; n * ho * wo];
-        qconv(&layer, LayerInput::F32(&x), g, &mut out).unwrap();
+        qconv_reference(&layer, LayerInput::F32(&x), g, &mut out).unwrap();
         let acc = conv_reference(&w_q, &x_q, g, n, c.input.zero_point);
         for (idx, (&got, &a)) in out.iter().zip(&acc).enumerate() {
             let co = idx / (ho * wo);
@@ -412,4 +412,88 @@ fn im2col_equals_its_reference_on_random_geometries() {
         checked += 1;
     }
     assert!(checked > 150, "{checked} geometries fit");
+}
+
+/// Both patch orders of the kernel against the reference: the same output bits on random
+/// geometries (1x1 without unfolding, blocks of positions beyond one, strides, dilations,
+/// padding), float and u7 inputs, ReLU and bias; its unfolding equals the reference's
+/// columns reordered to `(ky, kx, ci)`.
+#[test]
+fn channels_last_qconv_gives_the_reference_bits() {
+    use tricons::ops::qconv::{im2col_hwc_u7, im2col_u7_reference};
+    let mut rng = tricons::rng::Rng::new(17);
+    let mut below = |n: u64| (rng.next_u64() % n) as usize;
+    let mut checked = 0;
+    for trial in 0..120u64 {
+        let pointwise = trial % 4 == 0;
+        let g = ConvGeometry {
+            c_in: 1 + below(12),
+            h: 1 + below(24),
+            w: 1 + below(24),
+            kernel: if pointwise { [1, 1] } else { [1 + below(4), 1 + below(3)] },
+            strides: if pointwise { [1, 1] } else { [1 + below(2), 1 + below(2)] },
+            pads: if pointwise { [0; 4] } else { [below(2), below(2), below(2), below(2)] },
+            dilations: [1 + below(2), 1 + below(2)],
+        };
+        let Ok((ho, wo)) = g.output_hw() else { continue };
+        let (k, n) = (g.patch_len(), 1 + below(20));
+        let c = case(k, n, 100 + trial);
+        let layer = Int8Layer::new(
+            &c.w,
+            k,
+            n,
+            &OutputFold { post_scale: &c.post, bias: &c.bias, relu: trial % 3 == 0 },
+            c.input,
+            None,
+        )
+        .unwrap();
+        let x = values(g.c_in * g.h * g.w, 200 + trial);
+        let mut x_q = vec![0u8; x.len()];
+        layer.quantize_input(&x, &mut x_q).unwrap();
+        for order in [PatchOrder::Planar, PatchOrder::ChannelsLast] {
+            let conv = ConvLayer::with_order(&layer, g.kernel, order).unwrap();
+            for input in [LayerInput::F32(&x), LayerInput::U7(&x_q)] {
+                let mut want = vec![0f32; n * ho * wo];
+                qconv_reference(&layer, input, &g, &mut want).unwrap();
+                let mut got = vec![f32::NAN; want.len()];
+                qconv(&conv, input, &g, &mut got).unwrap();
+                let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got), bits(&want), "{g:?}, n {n}, {order:?}, input {input:?}");
+            }
+        }
+        let by_channels = ConvLayer::new(&layer, g.kernel).unwrap().order();
+        assert_eq!(by_channels == PatchOrder::ChannelsLast, g.c_in >= tricons::ops::qconv::CHANNELS_LAST_MIN_C_IN);
+        // the unfolding: reference column (ci, ky, kx) is column (ky, kx, ci) here
+        let (hw, taps) = (g.h * g.w, g.kernel[0] * g.kernel[1]);
+        let hwc: Vec<u8> = (0..hw * g.c_in).map(|i| x_q[(i % g.c_in) * hw + i / g.c_in]).collect();
+        let mut want = vec![0u8; ho * wo * k];
+        im2col_u7_reference(&x_q, &g, 99, &mut want).unwrap();
+        let p0 = below((ho * wo) as u64);
+        let rows = 1 + below((ho * wo - p0) as u64);
+        let mut got = vec![0u8; rows * k];
+        im2col_hwc_u7(&hwc, &g, 99, p0, rows, &mut got).unwrap();
+        for (r, patch) in got.chunks_exact(k).enumerate() {
+            for (col, &v) in patch.iter().enumerate() {
+                let (tap, ci) = (col / g.c_in, col % g.c_in);
+                assert_eq!(v, want[(p0 + r) * k + ci * taps + tap], "{g:?} position {} column {col}", p0 + r);
+            }
+        }
+        checked += 1;
+    }
+    assert!(checked > 80, "{checked} geometries fit");
+    // a 3x3 convolution of more positions than one block (256), as the Mask R-CNN's FPN runs
+    let g = ConvGeometry { c_in: 8, h: 20, w: 30, kernel: [3, 3], strides: [1, 1], pads: [1; 4], dilations: [1, 1] };
+    let (k, n) = (g.patch_len(), 16);
+    let c = case(k, n, 7);
+    let layer =
+        Int8Layer::new(&c.w, k, n, &OutputFold { post_scale: &c.post, bias: &c.bias, relu: true }, c.input, None)
+            .unwrap();
+    let x = values(g.c_in * g.h * g.w, 8);
+    let (mut want, mut got) = (vec![0f32; n * 600], vec![0f32; n * 600]);
+    qconv_reference(&layer, LayerInput::F32(&x), &g, &mut want).unwrap();
+    qconv(&ConvLayer::new(&layer, g.kernel).unwrap(), LayerInput::F32(&x), &g, &mut got).unwrap();
+    assert!(got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()));
+    // what is not a permutation, and a kernel the weights do not fit, are errors
+    assert!(layer.with_rows_permuted(&vec![0; k]).is_err());
+    assert!(ConvLayer::new(&layer, [5, 5]).is_err());
 }

@@ -20,7 +20,9 @@
 //! (`ScatterElements`, replacing tract's per-element coordinate walk). Two more replace standard nodes
 //! tract runs slowly, put in by the pose loader's rewrite ([`crate::pose::rewrite`]):
 //! [`reduce_max`] (`ReduceMaxAxis` for a single-axis `ReduceMax`) and [`upsample`]
-//! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`).
+//! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`). The Mask R-CNN loader's
+//! rewrite ([`crate::segment::rewrite`]) puts in [`depthwise`] (`DepthwiseConv2d` for a
+//! `Conv` with one input channel per group).
 //!
 //! Kernels work on one batch item: points are `(n, 3)` row-major `f32`
 //! slices, features `(c, n)` row-major, indices `i64`. Squared distances are
@@ -29,6 +31,8 @@
 //! index.
 
 pub mod ball_query;
+pub mod conv_geometry;
+pub mod depthwise;
 pub mod fps;
 pub mod gather;
 pub mod knn;
@@ -50,8 +54,8 @@ pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 /// Node types whose wall time [`profile`] accounts: the `ai.tricons` ones of the
 /// exported graph, the two standard operators implemented here (`RoiAlign`,
 /// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
-/// replacements of the pose rewrite.
-pub const PROFILED_NODE_TYPES: [&str; 14] = [
+/// replacements of the pose rewrite, the depthwise convolution of the Mask R-CNN rewrite.
+pub const PROFILED_NODE_TYPES: [&str; 15] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -66,6 +70,7 @@ pub const PROFILED_NODE_TYPES: [&str; 14] = [
     "ReduceMaxAxis",
     "BilinearUpsample2x",
     "ScatterElements",
+    "DepthwiseConv2d",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -92,6 +97,7 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("QConv", qconv::onnx::parse);
     reg.insert("ReduceMaxAxis", reduce_max::onnx::parse);
     reg.insert("BilinearUpsample2x", upsample::onnx::parse);
+    reg.insert("DepthwiseConv2d", depthwise::onnx::parse);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

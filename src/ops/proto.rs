@@ -1,8 +1,8 @@
 //! Helpers of the load-time rewrites on the ONNX protobuf (the Mask R-CNN's in
 //! `segment::rewrite`, the pose graph's in `pose::rewrite` and `pose::fold`, int8's in
-//! `quant::rewrite`): attributes and constants.
+//! `quant::rewrite`): attributes and constants, read and built.
 
-use tract_onnx::pb::{AttributeProto, GraphProto, NodeProto, TensorProto, tensor_proto};
+use tract_onnx::pb::{AttributeProto, GraphProto, NodeProto, TensorProto, attribute_proto, tensor_proto};
 
 /// A node's attribute by name.
 pub fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {
@@ -22,6 +22,53 @@ pub fn attr_f(node: &NodeProto, name: &str, default: f32) -> f32 {
 /// A string attribute, `default` when absent (or not UTF-8: empty).
 pub fn attr_s<'a>(node: &'a NodeProto, name: &str, default: &'a str) -> &'a str {
     attr(node, name).map_or(default, |a| std::str::from_utf8(&a.s).unwrap_or(""))
+}
+
+/// An integer attribute.
+pub fn a_int(name: &str, i: i64) -> AttributeProto {
+    AttributeProto { name: name.into(), r#type: attribute_proto::AttributeType::Int as i32, i, ..Default::default() }
+}
+
+/// A float attribute.
+pub fn a_float(name: &str, f: f32) -> AttributeProto {
+    AttributeProto { name: name.into(), r#type: attribute_proto::AttributeType::Float as i32, f, ..Default::default() }
+}
+
+/// A list-of-floats attribute.
+pub fn a_floats(name: &str, floats: Vec<f32>) -> AttributeProto {
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_proto::AttributeType::Floats as i32,
+        floats,
+        ..Default::default()
+    }
+}
+
+/// A list-of-integers attribute.
+pub fn a_ints(name: &str, ints: Vec<i64>) -> AttributeProto {
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_proto::AttributeType::Ints as i32,
+        ints,
+        ..Default::default()
+    }
+}
+
+/// An f32 tensor attribute (little-endian raw data).
+pub fn a_tensor(name: &str, dims: &[usize], values: &[f32]) -> AttributeProto {
+    let t = TensorProto {
+        name: name.into(),
+        dims: dims.iter().map(|&d| d as i64).collect(),
+        data_type: tensor_proto::DataType::Float as i32,
+        raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        ..Default::default()
+    };
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_proto::AttributeType::Tensor as i32,
+        t: Some(t),
+        ..Default::default()
+    }
 }
 
 /// A constant tensor by name: an initializer, or the value of the `Constant` node writing it.

@@ -243,12 +243,7 @@ mod tests {
     fn gemm_with_transposed_weight_and_bias_folds() {
         let mut m = model("Gemm", &[5, 6], 5, false, true);
         let g = m.graph.as_mut().unwrap();
-        g.node[0].attribute.push(AttributeProto {
-            name: "transB".into(),
-            r#type: tract_onnx::pb::attribute_proto::AttributeType::Int as i32,
-            i: 1,
-            ..Default::default()
-        });
+        g.node[0].attribute.push(crate::ops::proto::a_int("transB", 1));
         check(m, &[3, 6], FoldReport { batch_norms: 1, bias_adds: 0 });
     }
 

@@ -9,9 +9,9 @@
 //!
 //! Anything else is left alone; the report counts what was replaced.
 
-use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, attribute_proto};
+use tract_onnx::pb::{GraphProto, ModelProto, NodeProto};
 
-use crate::ops::proto::{self, attr, attr_i, attr_s};
+use crate::ops::proto::{self, a_int, attr, attr_i, attr_s};
 
 /// Domain of the replacement nodes.
 const DOMAIN: &str = "ai.tricons";
@@ -23,15 +23,6 @@ pub struct RewriteReport {
     pub reduce_max: usize,
     /// `Resize` nodes now `BilinearUpsample2x`.
     pub upsample: usize,
-}
-
-fn int_attr(name: &str, value: i64) -> AttributeProto {
-    AttributeProto {
-        name: name.into(),
-        r#type: attribute_proto::AttributeType::Int as i32,
-        i: value,
-        ..Default::default()
-    }
 }
 
 /// An f32 constant (initializer or `Constant` node) by name.
@@ -56,7 +47,7 @@ fn reduce_max(node: &NodeProto) -> Option<NodeProto> {
         domain: DOMAIN.into(),
         input: node.input.clone(),
         output: node.output.clone(),
-        attribute: vec![int_attr("axis", *axis), int_attr("keepdims", attr_i(node, "keepdims", 1))],
+        attribute: vec![a_int("axis", *axis), a_int("keepdims", attr_i(node, "keepdims", 1))],
         ..Default::default()
     })
 }

@@ -23,6 +23,14 @@ pub enum LayerOutput<'a> {
     F32(&'a mut [f32]),
     /// Transposed `[n][m]` floats (NCHW convolution output).
     F32Transposed(&'a mut [f32]),
+    /// Rows of a wider transposed output: element (i, j) at `out[j * ld + i]` (a block of
+    /// output positions of an NCHW convolution whose planes hold `ld` positions).
+    F32TransposedRows {
+        /// The output from this block's first position on.
+        out: &'a mut [f32],
+        /// Positions per output plane.
+        ld: usize,
+    },
     /// Row-major `[m][n]` u7 in the layer's output parameters.
     U7(&'a mut [u8]),
 }
@@ -108,6 +116,24 @@ impl Int8Layer {
         self.output
     }
 
+    /// The same layer with its weight rows reordered: row `r` of the result is row
+    /// `perm[r]` of this one (a convolution's patch order changed to match another
+    /// unfolding). Quantization is per output channel, so the int8 weights, scales and
+    /// column sums are the same; the integer products sum the same terms, so outputs are
+    /// bit for bit those of this layer on inputs reordered the same way.
+    pub fn with_rows_permuted(&self, perm: &[usize]) -> Result<Int8Layer, GemmError> {
+        let mut seen = vec![false; self.k];
+        if perm.len() != self.k || !perm.iter().all(|&r| r < self.k && !std::mem::replace(&mut seen[r], true)) {
+            return Err(GemmError::Len { what: "row permutation", got: perm.len(), expected: self.k });
+        }
+        let mut q = Vec::with_capacity(self.k * self.n);
+        for &r in perm {
+            q.extend((0..self.n).map(|j| self.packed.weight(r, j).unwrap_or(0)));
+        }
+        let packed = PackedWeights::with_kernel(&q, self.k, self.n, self.packed.kernel())?;
+        Ok(Int8Layer { packed, scale: self.scale.clone(), bias: self.bias.clone(), ..*self })
+    }
+
     /// Quantize float activations with the layer's input parameters.
     pub fn quantize_input(&self, x: &[f32], out: &mut [u8]) -> Result<(), GemmError> {
         quantize_u7(x, self.input.inv_scale(), self.input.zero_point, out)
@@ -133,6 +159,7 @@ impl Int8Layer {
         let out = match out {
             LayerOutput::F32(out) => Output::F32 { out, ld: self.n },
             LayerOutput::F32Transposed(out) => Output::F32Transposed { out, ld: m },
+            LayerOutput::F32TransposedRows { out, ld } => Output::F32Transposed { out, ld },
             LayerOutput::U7(out) => {
                 let q = self.output.unwrap_or(QParams { scale: 1.0, zero_point: 0 });
                 Output::U7 { out, ld: self.n, inv_scale: q.inv_scale(), zero_point: q.zero_point }

@@ -12,11 +12,11 @@
 
 use std::collections::HashMap;
 
-use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, TensorProto, attribute_proto, tensor_proto};
+use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, TensorProto, tensor_proto};
 
 use super::params::QParams;
 use super::profile::QuantProfile;
-use crate::ops::proto::{attr, attr_f, attr_i};
+use crate::ops::proto::{a_float, a_floats, a_int, a_ints, a_tensor, attr, attr_f, attr_i};
 
 /// ONNX domain of the int8 nodes.
 pub const DOMAIN: &str = "ai.tricons";
@@ -248,48 +248,6 @@ pub struct ApplyReport {
     pub quantized: usize,
     /// Follower nodes folded into them.
     pub fused: usize,
-}
-
-fn a_int(name: &str, i: i64) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: attribute_proto::AttributeType::Int as i32, i, ..Default::default() }
-}
-
-fn a_float(name: &str, f: f32) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: attribute_proto::AttributeType::Float as i32, f, ..Default::default() }
-}
-
-fn a_floats(name: &str, floats: Vec<f32>) -> AttributeProto {
-    AttributeProto {
-        name: name.into(),
-        r#type: attribute_proto::AttributeType::Floats as i32,
-        floats,
-        ..Default::default()
-    }
-}
-
-fn a_ints(name: &str, ints: Vec<i64>) -> AttributeProto {
-    AttributeProto {
-        name: name.into(),
-        r#type: attribute_proto::AttributeType::Ints as i32,
-        ints,
-        ..Default::default()
-    }
-}
-
-fn a_tensor(name: &str, dims: &[usize], values: &[f32]) -> AttributeProto {
-    let t = TensorProto {
-        name: name.into(),
-        dims: dims.iter().map(|&d| d as i64).collect(),
-        data_type: tensor_proto::DataType::Float as i32,
-        raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
-        ..Default::default()
-    };
-    AttributeProto {
-        name: name.into(),
-        r#type: attribute_proto::AttributeType::Tensor as i32,
-        t: Some(t),
-        ..Default::default()
-    }
 }
 
 fn q_attrs(prefix: &str, q: QParams) -> [AttributeProto; 2] {

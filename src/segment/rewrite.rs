@@ -12,12 +12,15 @@
 //! * **The mask-pasting `Loop`** (`_onnx_paste_masks_in_image_loop`): removed. Its
 //!   two inputs from the outer graph, the padded 28x28 mask probabilities and the
 //!   integer paste boxes, become graph outputs and [`super::paste`] pastes in Rust.
+//!
+//! One more is for speed, not loading: a **depthwise `Conv`** (`group` = input channels =
+//! output channels, constant weight and bias; MobileNetV3's) becomes `DepthwiseConv2d`
+//! ([`crate::ops::depthwise`]), which tract's generic scalar walk ran at ~2 G
+//! multiply-adds/s.
 
 use std::collections::{HashMap, HashSet};
 
-use tract_onnx::pb::{
-    AttributeProto, GraphProto, ModelProto, NodeProto, TensorProto, ValueInfoProto, attribute_proto, tensor_proto,
-};
+use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, TensorProto, ValueInfoProto, tensor_proto};
 
 use crate::ops::proto::{self, attr};
 
@@ -35,16 +38,83 @@ pub struct RewriteReport {
     pub slices_clamped: usize,
     /// The graph output the removed mask-pasting `Loop` produced (pasted in Rust now).
     pub pasted_output: Option<String>,
+    /// Depthwise `Conv` nodes now `DepthwiseConv2d`.
+    pub depthwise: usize,
 }
 
-/// Apply the three rewrites to `model` in place. Patterns that are absent are left
+/// Apply the rewrites to `model` in place. Patterns that are absent are left
 /// alone (the report says what was found); anything unexpected in a pattern is an error.
 pub fn rewrite(model: &mut ModelProto) -> Result<RewriteReport, String> {
     let graph = model.graph.as_mut().ok_or("the file holds no graph")?;
     let ifs_inlined = inline_empty_guard_ifs(graph)?;
     let pasted_output = cut_paste_loop(graph)?;
     let slices_clamped = clamp_slices(graph);
-    Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output })
+    let depthwise = depthwise_convs(graph);
+    if depthwise > 0 && !model.opset_import.iter().any(|o| o.domain == TRICONS_DOMAIN) {
+        model.opset_import.push(tract_onnx::pb::OperatorSetIdProto { domain: TRICONS_DOMAIN.into(), version: 1 });
+    }
+    Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output, depthwise })
+}
+
+const TRICONS_DOMAIN: &str = "ai.tricons";
+
+/// `DepthwiseConv2d` for a 2-D `Conv` with explicit (or no) padding, `group` = C and a
+/// constant weight `(C, 1, kh, kw)` (and bias, if any); `None` for anything else.
+fn depthwise_conv(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
+    if node.op_type != "Conv" || !(2..=3).contains(&node.input.len()) || node.output.len() != 1 {
+        return None;
+    }
+    let group = proto::attr_i(node, "group", 1);
+    let auto_pad = proto::attr_s(node, "auto_pad", "NOTSET");
+    let w = proto::constant(graph, &node.input[1])?;
+    let [c, 1, kh, kw] = w.dims[..] else { return None };
+    if group < 2 || group != c || kh < 1 || kw < 1 || !(auto_pad == "NOTSET" || auto_pad.is_empty()) {
+        return None;
+    }
+    let weight = proto::tensor_f32(w)?;
+    let bias = match node.input.get(2).filter(|b| !b.is_empty()) {
+        Some(b) => proto::tensor_f32(proto::constant(graph, b)?)?,
+        None => vec![0.0; c as usize],
+    };
+    let ints = |name: &str, len: usize, default: i64| -> Option<Vec<i64>> {
+        let v = proto::attr(node, name).map_or_else(|| vec![default; len], |a| a.ints.clone());
+        // kernel sizes, strides and dilations positive, pads not negative
+        let least = default.min(1);
+        (v.len() == len && v.iter().all(|&x| x >= least)).then_some(v)
+    };
+    let kernel = ints("kernel_shape", 2, 1)?;
+    if kernel != [kh, kw] || weight.len() != (c * kh * kw) as usize || bias.len() != c as usize {
+        return None;
+    }
+    Some(NodeProto {
+        name: node.name.clone(),
+        op_type: "DepthwiseConv2d".into(),
+        domain: TRICONS_DOMAIN.into(),
+        input: vec![node.input[0].clone()],
+        output: node.output.clone(),
+        attribute: vec![
+            proto::a_tensor("weight", &[c as usize, kh as usize, kw as usize], &weight),
+            proto::a_floats("bias", bias),
+            proto::a_ints("kernel_shape", kernel),
+            proto::a_ints("strides", ints("strides", 2, 1)?),
+            proto::a_ints("pads", ints("pads", 4, 0)?),
+            proto::a_ints("dilations", ints("dilations", 2, 1)?),
+        ],
+        ..Default::default()
+    })
+}
+
+/// Replace every depthwise `Conv` ([`depthwise_conv`]); the count.
+fn depthwise_convs(graph: &mut GraphProto) -> usize {
+    let replaced: Vec<Option<NodeProto>> = graph.node.iter().map(|n| depthwise_conv(graph, n)).collect();
+    let mut count = 0;
+    for (node, new) in graph.node.iter_mut().zip(replaced) {
+        if let Some(new) = new {
+            *node = new;
+            count += 1;
+        }
+    }
+    count
 }
 
 /// Replace `If(cond) then {constants} else {work}` by the else-branch's nodes.
@@ -214,12 +284,7 @@ fn clamp_slices(graph: &mut GraphProto) -> usize {
             op_type: "Gather".into(),
             input: vec![shape, node.input[3].clone()],
             output: vec![dims.clone()],
-            attribute: vec![AttributeProto {
-                name: "axis".into(),
-                r#type: attribute_proto::AttributeType::Int as i32,
-                i: 0,
-                ..Default::default()
-            }],
+            attribute: vec![proto::a_int("axis", 0)],
             ..Default::default()
         });
         nodes.push(NodeProto {

@@ -1,50 +1,8 @@
 //! Pure kernels of `QConv` on slices.
 
+pub use crate::ops::conv_geometry::ConvGeometry;
 use crate::ops::{OpError, OpResult, check_len};
 use crate::quant::{Int8Layer, LayerInput, LayerOutput};
-
-/// Geometry of a 2-D convolution on one `(c_in, h, w)` image.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct ConvGeometry {
-    /// Input channels.
-    pub c_in: usize,
-    /// Input height.
-    pub h: usize,
-    /// Input width.
-    pub w: usize,
-    /// Kernel height and width.
-    pub kernel: [usize; 2],
-    /// Strides (y, x).
-    pub strides: [usize; 2],
-    /// Padding (top, left, bottom, right), ONNX order.
-    pub pads: [usize; 4],
-    /// Dilations (y, x).
-    pub dilations: [usize; 2],
-}
-
-impl ConvGeometry {
-    /// Output height and width, or an error when the kernel does not fit.
-    pub fn output_hw(&self) -> OpResult<(usize, usize)> {
-        let axis = |size: usize, pad: usize, k: usize, s: usize, d: usize| -> OpResult<usize> {
-            let span = d * (k - 1) + 1;
-            let padded = size + pad;
-            if k == 0 || s == 0 || d == 0 || padded < span {
-                return Err(OpError::BadLength { op: "QConv", what: "input spatial size", got: size, expected: span });
-            }
-            Ok((padded - span) / s + 1)
-        };
-        let [kh, kw] = self.kernel;
-        Ok((
-            axis(self.h, self.pads[0] + self.pads[2], kh, self.strides[0], self.dilations[0])?,
-            axis(self.w, self.pads[1] + self.pads[3], kw, self.strides[1], self.dilations[1])?,
-        ))
-    }
-
-    /// Patch length `c_in * kh * kw`.
-    pub fn patch_len(&self) -> usize {
-        self.c_in * self.kernel[0] * self.kernel[1]
-    }
-}
 
 /// Unfold a u7 image `(c_in, h, w)` into patches `[ho * wo][c_in * kh * kw]`
 /// (columns ordered `(ci, ky, kx)`, as the weight rows), `pad_value` outside the image.
@@ -126,8 +84,10 @@ pub fn im2col_u7_reference(x: &[u8], g: &ConvGeometry, pad_value: u8, out: &mut 
     Ok(())
 }
 
-/// Convolve one image: `x` `(c_in, h, w)` -> `out` `(n, ho, wo)` floats.
-pub fn qconv(layer: &Int8Layer, x: LayerInput<'_>, g: &ConvGeometry, out: &mut [f32]) -> OpResult {
+/// Convolve one image, the reference: `x` `(c_in, h, w)` -> `out` `(n, ho, wo)` floats, with
+/// `layer`'s weight rows in the ONNX order `(ci, ky, kx)`: the whole image unfolded by
+/// [`im2col_u7`], then one product. [`qconv`] gives its bits.
+pub fn qconv_reference(layer: &Int8Layer, x: LayerInput<'_>, g: &ConvGeometry, out: &mut [f32]) -> OpResult {
     let (ho, wo) = g.output_hw()?;
     check_len("QConv", "weight rows", layer.k(), g.patch_len())?;
     check_len("QConv", "output", out.len(), layer.n() * ho * wo)?;
@@ -136,14 +96,228 @@ pub fn qconv(layer: &Int8Layer, x: LayerInput<'_>, g: &ConvGeometry, out: &mut [
         LayerInput::U7(a) => a,
         LayerInput::F32(x) => {
             let mut q = vec![0u8; x.len()];
-            layer.quantize_input(x, &mut q).map_err(|e| OpError::Kernel { op: "QConv", message: e.to_string() })?;
+            layer.quantize_input(x, &mut q).map_err(kernel_error)?;
             quantized = q;
             &quantized
         }
     };
     let mut patches = vec![0u8; ho * wo * g.patch_len()];
     im2col_u7(xq, g, layer.input_params().zero_point as u8, &mut patches)?;
-    layer
-        .run_u7(&patches, ho * wo, LayerOutput::F32Transposed(out))
-        .map_err(|e| OpError::Kernel { op: "QConv", message: e.to_string() })
+    layer.run_u7(&patches, ho * wo, LayerOutput::F32Transposed(out)).map_err(kernel_error)
+}
+
+fn kernel_error(e: crate::quant::gemm::GemmError) -> OpError {
+    OpError::Kernel { op: "QConv", message: e.to_string() }
+}
+
+/// Output positions per unfolded block: a block's patches (`BLOCK_ROWS * c_in * kh * kw`
+/// bytes, 288 KiB for a 3x3 convolution of 128 channels) are multiplied while they are
+/// still in cache.
+const BLOCK_ROWS: usize = 256;
+
+/// Below this many input channels a convolution is unfolded plane by plane
+/// ([`im2col_u7`]): a channels-last tap would copy only a few bytes (the RGB stem's 3),
+/// and the transpose costs more than it saves (measured: `cargo bench --bench qgemm --
+/// qconv`, docs/results.md).
+pub const CHANNELS_LAST_MIN_C_IN: usize = 8;
+
+/// The order of a patch's columns, and of the weight rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PatchOrder {
+    /// ONNX's `(ci, ky, kx)`: unfolded from the planar image ([`im2col_u7`]).
+    Planar,
+    /// `(ky, kx, ci)`: each tap one contiguous run of `c_in` bytes of the channels-last
+    /// image ([`im2col_hwc_u7`]).
+    ChannelsLast,
+}
+
+/// A `QConv` layer prepared for [`qconv`]: its weight rows in the patch order its input
+/// is unfolded in (channels-last from [`CHANNELS_LAST_MIN_C_IN`] input channels on).
+#[derive(Debug)]
+pub struct ConvLayer {
+    layer: Int8Layer,
+    kernel: [usize; 2],
+    order: PatchOrder,
+}
+
+impl ConvLayer {
+    /// From the layer in ONNX row order and the kernel size; the order by channel count.
+    pub fn new(layer: &Int8Layer, kernel: [usize; 2]) -> OpResult<Self> {
+        let taps = kernel[0] * kernel[1];
+        let order = if taps > 0 && layer.k() / taps >= CHANNELS_LAST_MIN_C_IN {
+            PatchOrder::ChannelsLast
+        } else {
+            PatchOrder::Planar
+        };
+        Self::with_order(layer, kernel, order)
+    }
+
+    /// With a given patch order (tests, benchmarks).
+    pub fn with_order(layer: &Int8Layer, kernel: [usize; 2], order: PatchOrder) -> OpResult<Self> {
+        let [kh, kw] = kernel;
+        let taps = kh * kw;
+        if taps == 0 || !layer.k().is_multiple_of(taps) {
+            return Err(OpError::BadLength { op: "QConv", what: "weight rows", got: layer.k(), expected: taps });
+        }
+        let layer = match order {
+            PatchOrder::Planar => layer.with_rows_permuted(&(0..layer.k()).collect::<Vec<_>>()),
+            PatchOrder::ChannelsLast => {
+                let c_in = layer.k() / taps;
+                // row (tap, ci) of the result is row (ci, tap) of the ONNX order
+                let perm: Vec<usize> = (0..taps).flat_map(|t| (0..c_in).map(move |ci| ci * taps + t)).collect();
+                layer.with_rows_permuted(&perm)
+            }
+        }
+        .map_err(kernel_error)?;
+        Ok(Self { layer, kernel, order })
+    }
+
+    /// The layer (rows in [`Self::order`]).
+    pub fn layer(&self) -> &Int8Layer {
+        &self.layer
+    }
+
+    /// The patch order.
+    pub fn order(&self) -> PatchOrder {
+        self.order
+    }
+}
+
+/// Transposes a `(c, hw)` u8 image to `(hw, c)`, a block of positions at a time (the
+/// strided writes stay within `64 * c` bytes).
+pub fn chw_to_hwc_u8(x: &[u8], c: usize, hw: usize, out: &mut [u8]) -> OpResult {
+    check_len("QConv", "input", x.len(), c * hw)?;
+    check_len("QConv", "channels-last input", out.len(), c * hw)?;
+    const BLOCK: usize = 64;
+    for p0 in (0..hw).step_by(BLOCK) {
+        let p1 = (p0 + BLOCK).min(hw);
+        let dst = &mut out[p0 * c..p1 * c];
+        for (ci, plane) in x.chunks_exact(hw).enumerate() {
+            for (d, &v) in dst[ci..].iter_mut().step_by(c).zip(&plane[p0..p1]) {
+                *d = v;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Unfolds output positions `p0..p0 + rows` of a channels-last u7 image `(h, w, c_in)` into
+/// patches `[rows][kh * kw * c_in]` (columns ordered `(ky, kx, ci)`, as
+/// [`PatchOrder::ChannelsLast`] weight rows), `pad_value` outside the image: one `c_in`-byte copy
+/// per kernel tap.
+pub fn im2col_hwc_u7(x: &[u8], g: &ConvGeometry, pad_value: u8, p0: usize, rows: usize, out: &mut [u8]) -> OpResult {
+    let (ho, wo) = g.output_hw()?;
+    let (c, k) = (g.c_in, g.patch_len());
+    check_len("QConv", "channels-last input", x.len(), c * g.h * g.w)?;
+    check_len("QConv", "patches", out.len(), rows * k)?;
+    if p0 + rows > ho * wo {
+        return Err(OpError::BadLength { op: "QConv", what: "patch rows", got: p0 + rows, expected: ho * wo });
+    }
+    if k == 0 {
+        return Ok(());
+    }
+    let kw = g.kernel[1];
+    let [sy, sx] = g.strides;
+    let [dy, dx] = g.dilations;
+    let (h, w) = (g.h as isize, g.w as isize);
+    for (pos, patch) in (p0..p0 + rows).zip(out.chunks_exact_mut(k)) {
+        let (oy, ox) = (pos / wo, pos % wo);
+        let iy0 = (oy * sy) as isize - g.pads[0] as isize;
+        let ix0 = (ox * sx) as isize - g.pads[1] as isize;
+        for (ky, row) in patch.chunks_exact_mut(kw * c).enumerate() {
+            let iy = iy0 + (ky * dy) as isize;
+            if iy < 0 || iy >= h {
+                row.fill(pad_value);
+                continue;
+            }
+            let line = &x[iy as usize * g.w * c..(iy as usize + 1) * g.w * c];
+            for (kx, tap) in row.chunks_exact_mut(c).enumerate() {
+                let ix = ix0 + (kx * dx) as isize;
+                if ix < 0 || ix >= w {
+                    tap.fill(pad_value);
+                } else {
+                    tap.copy_from_slice(&line[ix as usize * c..(ix as usize + 1) * c]);
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+thread_local! {
+    /// [`qconv`]'s buffers (the quantized or channels-last image, patches), kept between
+    /// calls of the thread.
+    static SCRATCH: std::cell::RefCell<(Vec<u8>, Vec<u8>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+}
+
+/// Convolve one image: `x` `(c_in, h, w)` -> `out` `(n, ho, wo)` floats, the bits of
+/// [`qconv_reference`] with the layer `conv` was made from.
+///
+/// The input is quantized once if it arrives as floats. Channels-last ([`ConvLayer`]):
+/// the image is transposed once; a 1x1 convolution of stride 1 without padding multiplies
+/// it as it is, any other is unfolded [`BLOCK_ROWS`] output positions at a time
+/// ([`im2col_hwc_u7`]), each block multiplied into its columns of the NCHW output before
+/// the next is unfolded. Planar: unfolded by [`im2col_u7`] and multiplied, as the
+/// reference, into buffers kept between calls.
+pub fn qconv(conv: &ConvLayer, x: LayerInput<'_>, g: &ConvGeometry, out: &mut [f32]) -> OpResult {
+    let layer = &conv.layer;
+    let (ho, wo) = g.output_hw()?;
+    let m = ho * wo;
+    let k = g.patch_len();
+    check_len("QConv", "weight rows", layer.k(), k)?;
+    if conv.kernel != g.kernel {
+        let taps = |k: [usize; 2]| k[0] * k[1];
+        return Err(OpError::BadLength {
+            op: "QConv",
+            what: "kernel taps",
+            got: taps(g.kernel),
+            expected: taps(conv.kernel),
+        });
+    }
+    check_len("QConv", "output", out.len(), layer.n() * m)?;
+    let hw = g.h * g.w;
+    let image_len = g.c_in * hw;
+    match x {
+        LayerInput::U7(a) => check_len("QConv", "input", a.len(), image_len)?,
+        LayerInput::F32(a) => check_len("QConv", "input", a.len(), image_len)?,
+    }
+    if m == 0 {
+        return Ok(());
+    }
+    let pad = layer.input_params().zero_point as u8;
+    SCRATCH.with_borrow_mut(|(image, patches)| {
+        // the quantized image, planar (in `image`, or the input itself)
+        let planar: &[u8] = match x {
+            LayerInput::U7(a) => a,
+            LayerInput::F32(a) => {
+                image.resize(image_len, 0);
+                layer.quantize_input(a, image).map_err(kernel_error)?;
+                image
+            }
+        };
+        if conv.order == PatchOrder::Planar {
+            patches.resize(m * k, 0);
+            im2col_u7(planar, g, pad, patches)?;
+            return layer.run_u7(patches, m, LayerOutput::F32Transposed(out)).map_err(kernel_error);
+        }
+        // channels-last, in `patches` first
+        patches.resize(image_len, 0);
+        chw_to_hwc_u8(planar, g.c_in, hw, patches)?;
+        let pointwise = g.kernel == [1, 1] && g.strides == [1, 1] && g.pads == [0; 4];
+        if pointwise {
+            return layer.run_u7(patches, m, LayerOutput::F32Transposed(out)).map_err(kernel_error);
+        }
+        std::mem::swap(image, patches);
+        let hwc = &image[..image_len];
+        patches.resize(BLOCK_ROWS.min(m) * k, 0);
+        for p0 in (0..m).step_by(BLOCK_ROWS) {
+            let rows = BLOCK_ROWS.min(m - p0);
+            let block = &mut patches[..rows * k];
+            im2col_hwc_u7(hwc, g, pad, p0, rows, block)?;
+            layer
+                .run_u7(block, rows, LayerOutput::F32TransposedRows { out: &mut out[p0..], ld: m })
+                .map_err(kernel_error)?;
+        }
+        Ok(())
+    })
 }

@@ -6,17 +6,17 @@ use tract_onnx::model::ParsingContext;
 use tract_onnx::pb::NodeProto;
 use tract_onnx::tract_hir::internal::*;
 
+use super::kernel::ConvLayer;
 use crate::ops::qlinear::onnx::{activation_type, parse_layer};
 use crate::ops::tract_glue::{expand_op, onnx_rules};
-use crate::quant::Int8Layer;
 
 /// `QConv(X (N, C, H, W) f32 or u8) -> (N, Cout, Ho, Wo) f32`.
 #[derive(Clone, Debug)]
 pub struct QConv {
     /// The node's name (identity for tract's op comparisons).
     pub name: String,
-    /// The fused layer (`k = C * kh * kw`).
-    pub layer: Arc<Int8Layer>,
+    /// The fused layer (`k = C * kh * kw`), weight rows in the channels-last kernel's order.
+    pub conv: Arc<ConvLayer>,
     /// The input arrives as u7 (`u8`).
     pub input_u7: bool,
     /// Kernel height and width.
@@ -31,7 +31,7 @@ pub struct QConv {
 
 impl PartialEq for QConv {
     fn eq(&self, other: &Self) -> bool {
-        self.name == other.name && Arc::ptr_eq(&self.layer, &other.layer)
+        self.name == other.name && Arc::ptr_eq(&self.conv, &other.conv)
     }
 }
 impl Eq for QConv {}
@@ -64,9 +64,10 @@ pub fn parse(_ctx: &ParsingContext, node: &NodeProto) -> TractResult<(Box<dyn In
     let pads: Vec<usize> = node.get_attr_vec("pads")?;
     ensure!(pads.len() == 4, "{name}: pads must have 4 values, got {pads:?}");
     ensure!(layer.k() % (kernel[0] * kernel[1]) == 0, "{name}: weight rows {} vs kernel {kernel:?}", layer.k());
+    let conv = ConvLayer::new(&layer, kernel).map_err(|e| format_err!("{name}: {e}"))?;
     expand_op(QConv {
         name: name.clone(),
-        layer: Arc::new(layer),
+        conv: Arc::new(conv),
         input_u7,
         kernel,
         strides,
@@ -81,9 +82,9 @@ onnx_rules!(QConv, "QConv", inputs: 1, outputs: 1, |op, s, inputs, outputs| {
     s.equals(&inputs[0].rank, 4)?;
     s.equals(&outputs[0].rank, 4)?;
     s.equals(&inputs[0].shape[0], &outputs[0].shape[0])?;
-    let c_in = op.layer.k() / (op.kernel[0] * op.kernel[1]);
+    let c_in = op.conv.layer().k() / (op.kernel[0] * op.kernel[1]);
     s.equals(&inputs[0].shape[1], c_in.to_dim())?;
-    s.equals(&outputs[0].shape[1], op.layer.n().to_dim())?;
+    s.equals(&outputs[0].shape[1], op.conv.layer().n().to_dim())?;
     for axis in 0..2 {
         let op = op.clone();
         s.given(&inputs[0].shape[2 + axis], move |s, d| {

@@ -31,7 +31,7 @@ impl TractKernel for QConv {
                 self.out_len(axis, d).ok_or_else(|| format_err!("QConv {}: kernel larger than input", self.name))?;
             Ok(len.to_dim())
         };
-        Ok(tvec![f32::fact([s[0].clone(), self.layer.n().to_dim(), spatial(0)?, spatial(1)?])])
+        Ok(tvec![f32::fact([s[0].clone(), self.conv.layer().n().to_dim(), spatial(0)?, spatial(1)?])])
     }
 
     fn eval(&self, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
@@ -40,7 +40,7 @@ impl TractKernel for QConv {
         let (b, c, h, w) = (x.shape()[0], x.shape()[1], x.shape()[2], x.shape()[3]);
         let g = self.geometry(c, h, w);
         let (ho, wo) = g.output_hw()?;
-        let n = self.layer.n();
+        let n = self.conv.layer().n();
         let mut out = vec![0f32; b * n * ho * wo];
         let image = c * h * w;
         for (bi, o) in out.chunks_exact_mut(n * ho * wo).enumerate() {
@@ -49,7 +49,7 @@ impl TractKernel for QConv {
             } else {
                 LayerInput::F32(&x.try_as_plain_ram()?.as_slice::<f32>()?[bi * image..(bi + 1) * image])
             };
-            qconv(&self.layer, input, &g, o)?;
+            qconv(&self.conv, input, &g, o)?;
         }
         Ok(tvec![output(&[b, n, ho, wo], out)?])
     }
