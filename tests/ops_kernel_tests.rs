@@ -670,3 +670,130 @@ fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
         }
     }
 }
+
+/// `Resize2d`'s row kernel against its per-element reference, both modes, on random sizes
+/// (up and down, 1-pixel planes): the same bits.
+#[test]
+fn resize_equals_its_reference_bit_for_bit() {
+    use tricons::ops::resize::{ResizeMode, resize_plane, resize_plane_reference};
+    let mut rng = Rng::new(20);
+    let mut below = |n: u64| (rng.next_u64() % n) as usize;
+    let mut columns = Vec::new();
+    for _ in 0..200 {
+        let (h, w, ho, wo) = (1 + below(9), 1 + below(9), 1 + below(20), 1 + below(20));
+        let x: Vec<f32> = (0..h * w).map(|_| below(2001) as f32 / 100.0 - 10.0).collect();
+        for mode in [ResizeMode::LinearHalfPixel, ResizeMode::NearestAsymmetricFloor] {
+            let mut want = vec![0f32; ho * wo];
+            resize_plane_reference(mode, &x, [h, w], &mut want, [ho, wo]).unwrap();
+            let mut got = vec![f32::NAN; ho * wo];
+            resize_plane(mode, &x, [h, w], &mut got, [ho, wo], &mut columns).unwrap();
+            assert!(got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()), "{mode:?} {h}x{w} -> {ho}x{wo}");
+        }
+    }
+    assert!(resize_plane(ResizeMode::LinearHalfPixel, &[0.0; 5], [2, 3], &mut [0.0; 4], [2, 2], &mut columns).is_err());
+}
+
+/// The Mask R-CNN's two `Resize` forms as one-node graphs (sizes as a constant), through
+/// the loader's rewrite: `Resize2d`; nearest gives tract's own bits, linear agrees with
+/// tract's own `Resize` within the rounding of the blend (a convex combination of four
+/// inputs: `8 * eps * max |x|`); a `Resize` by `scales` is left alone.
+#[test]
+fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
+    use tract_onnx::pb::tensor_shape_proto::{Dimension, dimension};
+    use tract_onnx::pb::{
+        GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, TensorShapeProto, TypeProto,
+        ValueInfoProto, tensor_proto::DataType, type_proto,
+    };
+    use tract_onnx::prelude::*;
+    use tricons::ops::proto::a_string;
+    let typed = |name: &str, dims: &[usize]| {
+        let dim = dims
+            .iter()
+            .map(|&d| Dimension { value: Some(dimension::Value::DimValue(d as i64)), ..Default::default() })
+            .collect();
+        let t = type_proto::Tensor { elem_type: DataType::Float as i32, shape: Some(TensorShapeProto { dim }) };
+        ValueInfoProto {
+            name: name.into(),
+            r#type: Some(TypeProto { value: Some(type_proto::Value::TensorType(t)), ..Default::default() }),
+            ..Default::default()
+        }
+    };
+    let mut rng = Rng::new(21);
+    let (n, c, h, w) = (1, 3, 12, 17);
+    let x: Vec<f32> =
+        (0..n * c * h * w).map(|_| (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0).collect();
+    let cases = [
+        ("linear", "half_pixel", None, [8, 11], true),
+        ("linear", "half_pixel", None, [29, 40], true),
+        ("nearest", "asymmetric", Some("floor"), [24, 34], true),
+        ("nearest", "asymmetric", Some("floor"), [24, 34], false),
+    ];
+    for (mode, coords, nearest, [ho, wo], by_sizes) in cases {
+        let mut attribute = vec![a_string("mode", mode), a_string("coordinate_transformation_mode", coords)];
+        if let Some(nm) = nearest {
+            attribute.push(a_string("nearest_mode", nm));
+        }
+        let (input, initializer) = if by_sizes {
+            let sizes = TensorProto {
+                name: "sizes".into(),
+                dims: vec![4],
+                data_type: DataType::Int64 as i32,
+                int64_data: vec![n as i64, c as i64, ho as i64, wo as i64],
+                ..Default::default()
+            };
+            (vec!["x".into(), String::new(), String::new(), "sizes".into()], vec![sizes])
+        } else {
+            let scales = TensorProto {
+                name: "scales".into(),
+                dims: vec![4],
+                data_type: DataType::Float as i32,
+                float_data: vec![1.0, 1.0, 2.0, 2.0],
+                ..Default::default()
+            };
+            (vec!["x".into(), String::new(), "scales".into()], vec![scales])
+        };
+        let node = NodeProto {
+            name: "resize".into(),
+            op_type: "Resize".into(),
+            input,
+            output: vec!["y".into()],
+            attribute,
+            ..Default::default()
+        };
+        let model = ModelProto {
+            ir_version: 8,
+            opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
+            graph: Some(GraphProto {
+                node: vec![node],
+                initializer,
+                input: vec![typed("x", &[n, c, h, w])],
+                output: vec![ValueInfoProto { name: "y".into(), ..Default::default() }],
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        let run = |m: &ModelProto| -> Vec<f32> {
+            let onnx = tricons::ops::onnx_with_custom_ops();
+            let plan = onnx.model_for_proto_model(m).unwrap().into_optimized().unwrap().into_runnable().unwrap();
+            let out = plan.run(tvec![Tensor::from_shape(&[n, c, h, w], &x).unwrap().into_tvalue()]).unwrap();
+            assert_eq!(out[0].shape(), &[n, c, ho, wo]);
+            out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()
+        };
+        let tract_own = run(&model);
+        let mut rewritten = model.clone();
+        let report = tricons::segment::rewrite(&mut rewritten).unwrap();
+        assert_eq!(report.resize, by_sizes as usize, "{mode}, by sizes: {by_sizes}");
+        if !by_sizes {
+            continue;
+        }
+        let ours = run(&rewritten);
+        let max = x.iter().fold(0f32, |m, v| m.max(v.abs()));
+        for (j, (a, t)) in ours.iter().zip(&tract_own).enumerate() {
+            if mode == "nearest" {
+                assert_eq!(a.to_bits(), t.to_bits(), "{mode} output {j}");
+            } else {
+                assert!((a - t).abs() <= 8.0 * f32::EPSILON * max, "{mode} output {j}: ours {a}, tract {t}");
+            }
+        }
+    }
+}

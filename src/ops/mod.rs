@@ -22,7 +22,8 @@
 //! [`reduce_max`] (`ReduceMaxAxis` for a single-axis `ReduceMax`) and [`upsample`]
 //! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`). The Mask R-CNN loader's
 //! rewrite ([`crate::segment::rewrite`]) puts in [`depthwise`] (`DepthwiseConv2d` for a
-//! `Conv` with one input channel per group).
+//! `Conv` with one input channel per group) and [`resize`] (`Resize2d` for its linear
+//! half-pixel and nearest asymmetric `Resize`s).
 //!
 //! Kernels work on one batch item: points are `(n, 3)` row-major `f32`
 //! slices, features `(c, n)` row-major, indices `i64`. Squared distances are
@@ -42,6 +43,7 @@ pub mod proto;
 pub mod qconv;
 pub mod qlinear;
 pub mod reduce_max;
+pub mod resize;
 pub mod roi_align;
 pub mod scatter_elements;
 pub mod three_nn;
@@ -54,8 +56,8 @@ pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 /// Node types whose wall time [`profile`] accounts: the `ai.tricons` ones of the
 /// exported graph, the two standard operators implemented here (`RoiAlign`,
 /// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
-/// replacements of the pose rewrite, the depthwise convolution of the Mask R-CNN rewrite.
-pub const PROFILED_NODE_TYPES: [&str; 15] = [
+/// replacements of the pose rewrite, the two of the Mask R-CNN rewrite.
+pub const PROFILED_NODE_TYPES: [&str; 16] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -71,6 +73,7 @@ pub const PROFILED_NODE_TYPES: [&str; 15] = [
     "BilinearUpsample2x",
     "ScatterElements",
     "DepthwiseConv2d",
+    "Resize2d",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -98,6 +101,7 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("ReduceMaxAxis", reduce_max::onnx::parse);
     reg.insert("BilinearUpsample2x", upsample::onnx::parse);
     reg.insert("DepthwiseConv2d", depthwise::onnx::parse);
+    reg.insert("Resize2d", resize::onnx::parse);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

@@ -24,6 +24,16 @@ pub fn attr_s<'a>(node: &'a NodeProto, name: &str, default: &'a str) -> &'a str 
     attr(node, name).map_or(default, |a| std::str::from_utf8(&a.s).unwrap_or(""))
 }
 
+/// A string attribute.
+pub fn a_string(name: &str, value: &str) -> AttributeProto {
+    AttributeProto {
+        name: name.into(),
+        r#type: attribute_proto::AttributeType::String as i32,
+        s: value.as_bytes().to_vec(),
+        ..Default::default()
+    }
+}
+
 /// An integer attribute.
 pub fn a_int(name: &str, i: i64) -> AttributeProto {
     AttributeProto { name: name.into(), r#type: attribute_proto::AttributeType::Int as i32, i, ..Default::default() }

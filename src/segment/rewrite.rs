@@ -13,10 +13,12 @@
 //!   two inputs from the outer graph, the padded 28x28 mask probabilities and the
 //!   integer paste boxes, become graph outputs and [`super::paste`] pastes in Rust.
 //!
-//! One more is for speed, not loading: a **depthwise `Conv`** (`group` = input channels =
+//! Two more are for speed, not loading: a **depthwise `Conv`** (`group` = input channels =
 //! output channels, constant weight and bias; MobileNetV3's) becomes `DepthwiseConv2d`
 //! ([`crate::ops::depthwise`]), which tract's generic scalar walk ran at ~2 G
-//! multiply-adds/s.
+//! multiply-adds/s; a **`Resize` by `sizes`** in the two forms torchvision exports
+//! (linear with half-pixel coordinates: the input transform; nearest with asymmetric
+//! coordinates and floor: the FPN) becomes `Resize2d` ([`crate::ops::resize`]).
 
 use std::collections::{HashMap, HashSet};
 
@@ -40,6 +42,8 @@ pub struct RewriteReport {
     pub pasted_output: Option<String>,
     /// Depthwise `Conv` nodes now `DepthwiseConv2d`.
     pub depthwise: usize,
+    /// `Resize` nodes now `Resize2d`.
+    pub resize: usize,
 }
 
 /// Apply the rewrites to `model` in place. Patterns that are absent are left
@@ -49,11 +53,47 @@ pub fn rewrite(model: &mut ModelProto) -> Result<RewriteReport, String> {
     let ifs_inlined = inline_empty_guard_ifs(graph)?;
     let pasted_output = cut_paste_loop(graph)?;
     let slices_clamped = clamp_slices(graph);
-    let depthwise = depthwise_convs(graph);
-    if depthwise > 0 && !model.opset_import.iter().any(|o| o.domain == TRICONS_DOMAIN) {
+    let depthwise = replace_nodes(graph, depthwise_conv);
+    let resize = replace_nodes(graph, |_, node| resize_by_sizes(node));
+    if depthwise + resize > 0 && !model.opset_import.iter().any(|o| o.domain == TRICONS_DOMAIN) {
         model.opset_import.push(tract_onnx::pb::OperatorSetIdProto { domain: TRICONS_DOMAIN.into(), version: 1 });
     }
-    Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output, depthwise })
+    Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output, depthwise, resize })
+}
+
+/// `Resize2d` for a `Resize(X, roi, scales, sizes)` with only `sizes` given and the
+/// attributes of one of its two forms (defaults as ONNX's); `None` for anything else.
+fn resize_by_sizes(node: &NodeProto) -> Option<NodeProto> {
+    if node.op_type != "Resize" || node.input.len() != 4 || node.output.len() != 1 {
+        return None;
+    }
+    let empty = |i: usize| node.input[i].is_empty();
+    if !empty(1) || !empty(2) || empty(3) {
+        return None;
+    }
+    let plain = proto::attr_i(node, "antialias", 0) == 0
+        && proto::attr_i(node, "exclude_outside", 0) == 0
+        && proto::attr_s(node, "keep_aspect_ratio_policy", "stretch") == "stretch"
+        && proto::attr(node, "axes").is_none();
+    let coordinates = proto::attr_s(node, "coordinate_transformation_mode", "half_pixel");
+    let mode = match proto::attr_s(node, "mode", "nearest") {
+        "linear" if coordinates == "half_pixel" => "linear",
+        "nearest"
+            if coordinates == "asymmetric" && proto::attr_s(node, "nearest_mode", "round_prefer_floor") == "floor" =>
+        {
+            "nearest"
+        }
+        _ => return None,
+    };
+    plain.then(|| NodeProto {
+        name: node.name.clone(),
+        op_type: "Resize2d".into(),
+        domain: TRICONS_DOMAIN.into(),
+        input: vec![node.input[0].clone(), node.input[3].clone()],
+        output: node.output.clone(),
+        attribute: vec![proto::a_string("mode", mode)],
+        ..Default::default()
+    })
 }
 
 const TRICONS_DOMAIN: &str = "ai.tricons";
@@ -104,9 +144,9 @@ fn depthwise_conv(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
     })
 }
 
-/// Replace every depthwise `Conv` ([`depthwise_conv`]); the count.
-fn depthwise_convs(graph: &mut GraphProto) -> usize {
-    let replaced: Vec<Option<NodeProto>> = graph.node.iter().map(|n| depthwise_conv(graph, n)).collect();
+/// Replace every node `with` gives a replacement for; the count.
+fn replace_nodes(graph: &mut GraphProto, with: impl Fn(&GraphProto, &NodeProto) -> Option<NodeProto>) -> usize {
+    let replaced: Vec<Option<NodeProto>> = graph.node.iter().map(|n| with(graph, n)).collect();
     let mut count = 0;
     for (node, new) in graph.node.iter_mut().zip(replaced) {
         if let Some(new) = new {
