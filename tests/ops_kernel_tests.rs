@@ -563,11 +563,7 @@ fn depthwise_equals_its_reference_bit_for_bit() {
 /// `Conv` that is not depthwise is left alone.
 #[test]
 fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
-    use tract_onnx::pb::tensor_shape_proto::{Dimension, dimension};
-    use tract_onnx::pb::{
-        GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, TensorShapeProto, TypeProto,
-        ValueInfoProto, tensor_proto::DataType, type_proto,
-    };
+    use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, tensor_proto::DataType};
     use tract_onnx::prelude::*;
     use tricons::ops::conv_geometry::ConvGeometry;
     use tricons::ops::proto::{a_int, a_ints};
@@ -577,18 +573,6 @@ fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
         data_type: DataType::Float as i32,
         float_data: v.to_vec(),
         ..Default::default()
-    };
-    let typed = |name: &str, dims: &[usize]| {
-        let dim = dims
-            .iter()
-            .map(|&d| Dimension { value: Some(dimension::Value::DimValue(d as i64)), ..Default::default() })
-            .collect();
-        let t = type_proto::Tensor { elem_type: DataType::Float as i32, shape: Some(TensorShapeProto { dim }) };
-        ValueInfoProto {
-            name: name.into(),
-            r#type: Some(TypeProto { value: Some(type_proto::Value::TensorType(t)), ..Default::default() }),
-            ..Default::default()
-        }
     };
     let mut rng = Rng::new(19);
     let mut value = || (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0;
@@ -624,8 +608,8 @@ fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
             graph: Some(GraphProto {
                 node: vec![node],
                 initializer,
-                input: vec![typed("x", &[2, c, h, w])],
-                output: vec![typed("y", &[2, c, ho, wo])],
+                input: vec![f32_value_info("x", &[2, c, h, w])],
+                output: vec![f32_value_info("y", &[2, c, ho, wo])],
                 ..Default::default()
             }),
             ..Default::default()
@@ -699,25 +683,11 @@ fn resize_equals_its_reference_bit_for_bit() {
 /// inputs: `8 * eps * max |x|`); a `Resize` by `scales` is left alone.
 #[test]
 fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
-    use tract_onnx::pb::tensor_shape_proto::{Dimension, dimension};
     use tract_onnx::pb::{
-        GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, TensorShapeProto, TypeProto,
-        ValueInfoProto, tensor_proto::DataType, type_proto,
+        GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, ValueInfoProto, tensor_proto::DataType,
     };
     use tract_onnx::prelude::*;
     use tricons::ops::proto::a_string;
-    let typed = |name: &str, dims: &[usize]| {
-        let dim = dims
-            .iter()
-            .map(|&d| Dimension { value: Some(dimension::Value::DimValue(d as i64)), ..Default::default() })
-            .collect();
-        let t = type_proto::Tensor { elem_type: DataType::Float as i32, shape: Some(TensorShapeProto { dim }) };
-        ValueInfoProto {
-            name: name.into(),
-            r#type: Some(TypeProto { value: Some(type_proto::Value::TensorType(t)), ..Default::default() }),
-            ..Default::default()
-        }
-    };
     let mut rng = Rng::new(21);
     let (n, c, h, w) = (1, 3, 12, 17);
     let x: Vec<f32> =
@@ -766,7 +736,7 @@ fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
             graph: Some(GraphProto {
                 node: vec![node],
                 initializer,
-                input: vec![typed("x", &[n, c, h, w])],
+                input: vec![f32_value_info("x", &[n, c, h, w])],
                 output: vec![ValueInfoProto { name: "y".into(), ..Default::default() }],
                 ..Default::default()
             }),
@@ -795,5 +765,21 @@ fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
                 assert!((a - t).abs() <= 8.0 * f32::EPSILON * max, "{mode} output {j}: ours {a}, tract {t}");
             }
         }
+    }
+}
+
+/// A graph input or output of f32 elements and the given concrete shape.
+fn f32_value_info(name: &str, dims: &[usize]) -> tract_onnx::pb::ValueInfoProto {
+    use tract_onnx::pb::tensor_shape_proto::{Dimension, dimension};
+    use tract_onnx::pb::{TensorShapeProto, TypeProto, ValueInfoProto, tensor_proto::DataType, type_proto};
+    let dim = dims
+        .iter()
+        .map(|&d| Dimension { value: Some(dimension::Value::DimValue(d as i64)), ..Default::default() })
+        .collect();
+    let t = type_proto::Tensor { elem_type: DataType::Float as i32, shape: Some(TensorShapeProto { dim }) };
+    ValueInfoProto {
+        name: name.into(),
+        r#type: Some(TypeProto { value: Some(type_proto::Value::TensorType(t)), ..Default::default() }),
+        ..Default::default()
     }
 }

@@ -4,37 +4,13 @@ use tract_onnx::tract_hir::internal::*;
 
 use super::DepthwiseConv2d;
 use super::kernel::depthwise;
-use crate::ops::conv_geometry::ConvGeometry;
 use crate::ops::tract_glue::{TractKernel, input_slice, output};
-
-impl DepthwiseConv2d {
-    fn geometry(&self, h: usize, w: usize) -> ConvGeometry {
-        ConvGeometry {
-            c_in: self.channels,
-            h,
-            w,
-            kernel: self.kernel,
-            strides: self.strides,
-            pads: self.pads,
-            dilations: self.dilations,
-        }
-    }
-}
 
 impl TractKernel for DepthwiseConv2d {
     fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
         let s = &inputs[0].shape;
-        ensure!(s.len() == 4, "DepthwiseConv2d {}: input rank {}, expected 4", self.name, s.len());
-        let spatial = |axis: usize| -> TractResult<TDim> {
-            let d = s[2 + axis]
-                .to_usize()
-                .map_err(|_| format_err!("DepthwiseConv2d {}: symbolic spatial size", self.name))?;
-            let len = self
-                .out_len(axis, d)
-                .ok_or_else(|| format_err!("DepthwiseConv2d {}: kernel larger than input", self.name))?;
-            Ok(len.to_dim())
-        };
-        Ok(tvec![f32::fact([s[0].clone(), self.channels.to_dim(), spatial(0)?, spatial(1)?])])
+        let [ho, wo] = self.attrs.output_spatial(&format!("DepthwiseConv2d {}", self.name), s)?;
+        Ok(tvec![f32::fact([s[0].clone(), self.channels.to_dim(), ho, wo])])
     }
 
     fn eval(&self, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
@@ -42,7 +18,7 @@ impl TractKernel for DepthwiseConv2d {
         let shape = inputs[0].shape();
         let (b, c, h, w) = (shape[0], shape[1], shape[2], shape[3]);
         ensure!(c == self.channels, "DepthwiseConv2d {}: {c} input channels, expected {}", self.name, self.channels);
-        let g = self.geometry(h, w);
+        let g = self.attrs.geometry(self.channels, h, w);
         let (ho, wo) = g.output_hw()?;
         let mut out = vec![0f32; b * c * ho * wo];
         if c * h * w > 0 && c * ho * wo > 0 {

@@ -7,6 +7,7 @@ use tract_onnx::pb::NodeProto;
 use tract_onnx::tract_hir::internal::*;
 
 use super::kernel::ConvLayer;
+use crate::ops::conv_geometry::ConvAttributes;
 use crate::ops::qlinear::onnx::{activation_type, parse_layer};
 use crate::ops::tract_glue::{expand_op, onnx_rules};
 
@@ -19,14 +20,8 @@ pub struct QConv {
     pub conv: Arc<ConvLayer>,
     /// The input arrives as u7 (`u8`).
     pub input_u7: bool,
-    /// Kernel height and width.
-    pub kernel: [usize; 2],
-    /// Strides.
-    pub strides: [usize; 2],
-    /// Pads (top, left, bottom, right).
-    pub pads: [usize; 4],
-    /// Dilations.
-    pub dilations: [usize; 2],
+    /// Kernel, strides, pads, dilations.
+    pub attrs: ConvAttributes,
 }
 
 impl PartialEq for QConv {
@@ -41,39 +36,16 @@ impl std::hash::Hash for QConv {
     }
 }
 
-impl QConv {
-    /// Output size of one axis (`None` if the kernel does not fit).
-    pub fn out_len(&self, axis: usize, size: usize) -> Option<usize> {
-        let span = self.dilations[axis] * (self.kernel[axis] - 1) + 1;
-        let padded = size + self.pads[axis] + self.pads[axis + 2];
-        (padded >= span).then(|| (padded - span) / self.strides[axis] + 1)
-    }
-}
-
 /// Build the op from its node.
 pub fn parse(_ctx: &ParsingContext, node: &NodeProto) -> TractResult<(Box<dyn InferenceOp>, Vec<String>)> {
     let name = &node.name;
     let (layer, input_u7) = parse_layer(node)?;
     ensure!(layer.output_params().is_none(), "{name}: QConv writes floats only");
-    let two = |attr: &str| -> TractResult<[usize; 2]> {
-        let v: Vec<usize> = node.get_attr_vec(attr)?;
-        ensure!(v.len() == 2 && v.iter().all(|&x| x > 0), "{name}: {attr} must be two positive values, got {v:?}");
-        Ok([v[0], v[1]])
-    };
-    let (kernel, strides, dilations) = (two("kernel_shape")?, two("strides")?, two("dilations")?);
-    let pads: Vec<usize> = node.get_attr_vec("pads")?;
-    ensure!(pads.len() == 4, "{name}: pads must have 4 values, got {pads:?}");
+    let attrs = ConvAttributes::parse(node)?;
+    let kernel = attrs.kernel;
     ensure!(layer.k() % (kernel[0] * kernel[1]) == 0, "{name}: weight rows {} vs kernel {kernel:?}", layer.k());
     let conv = ConvLayer::new(&layer, kernel).map_err(|e| format_err!("{name}: {e}"))?;
-    expand_op(QConv {
-        name: name.clone(),
-        conv: Arc::new(conv),
-        input_u7,
-        kernel,
-        strides,
-        pads: [pads[0], pads[1], pads[2], pads[3]],
-        dilations,
-    })
+    expand_op(QConv { name: name.clone(), conv: Arc::new(conv), input_u7, attrs })
 }
 
 onnx_rules!(QConv, "QConv", inputs: 1, outputs: 1, |op, s, inputs, outputs| {
@@ -82,17 +54,8 @@ onnx_rules!(QConv, "QConv", inputs: 1, outputs: 1, |op, s, inputs, outputs| {
     s.equals(&inputs[0].rank, 4)?;
     s.equals(&outputs[0].rank, 4)?;
     s.equals(&inputs[0].shape[0], &outputs[0].shape[0])?;
-    let c_in = op.conv.layer().k() / (op.kernel[0] * op.kernel[1]);
+    let c_in = op.conv.layer().k() / (op.attrs.kernel[0] * op.attrs.kernel[1]);
     s.equals(&inputs[0].shape[1], c_in.to_dim())?;
     s.equals(&outputs[0].shape[1], op.conv.layer().n().to_dim())?;
-    for axis in 0..2 {
-        let op = op.clone();
-        s.given(&inputs[0].shape[2 + axis], move |s, d| {
-            if let Some(len) = d.to_usize().ok().and_then(|d| op.out_len(axis, d)) {
-                s.equals(&outputs[0].shape[2 + axis], len.to_dim())?;
-            }
-            Ok(())
-        })?;
-    }
-    Ok(())
+    op.attrs.spatial_rules(s, &inputs[0], &outputs[0])
 });
