@@ -564,7 +564,6 @@ fn depthwise_equals_its_reference_bit_for_bit() {
 #[test]
 fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
     use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, tensor_proto::DataType};
-    use tract_onnx::prelude::*;
     use tricons::ops::conv_geometry::ConvGeometry;
     use tricons::ops::proto::{a_int, a_ints};
     let tensor = |name: &str, dims: &[usize], v: &[f32]| TensorProto {
@@ -614,12 +613,7 @@ fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
             }),
             ..Default::default()
         };
-        let run = |m: &ModelProto| -> Vec<f32> {
-            let onnx = tricons::ops::onnx_with_custom_ops();
-            let plan = onnx.model_for_proto_model(m).unwrap().into_optimized().unwrap().into_runnable().unwrap();
-            let out = plan.run(tvec![Tensor::from_shape(&[2, c, h, w], &x).unwrap().into_tvalue()]).unwrap();
-            out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()
-        };
+        let run = |m: &ModelProto| run_one_node_graph(m, &x, &[2, c, h, w], &[2, c, ho, wo]);
         let tract_own = run(&model);
         let mut rewritten = model.clone();
         let report = tricons::segment::rewrite(&mut rewritten).unwrap();
@@ -659,10 +653,9 @@ fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
 /// (up and down, 1-pixel planes): the same bits.
 #[test]
 fn resize_equals_its_reference_bit_for_bit() {
-    use tricons::ops::resize::{ResizeMode, resize_plane, resize_plane_reference};
+    use tricons::ops::resize::{ResizeMode, resize_columns, resize_plane, resize_plane_reference};
     let mut rng = Rng::new(20);
     let mut below = |n: u64| (rng.next_u64() % n) as usize;
-    let mut columns = Vec::new();
     for _ in 0..200 {
         let (h, w, ho, wo) = (1 + below(9), 1 + below(9), 1 + below(20), 1 + below(20));
         let x: Vec<f32> = (0..h * w).map(|_| below(2001) as f32 / 100.0 - 10.0).collect();
@@ -670,11 +663,15 @@ fn resize_equals_its_reference_bit_for_bit() {
             let mut want = vec![0f32; ho * wo];
             resize_plane_reference(mode, &x, [h, w], &mut want, [ho, wo]).unwrap();
             let mut got = vec![f32::NAN; ho * wo];
-            resize_plane(mode, &x, [h, w], &mut got, [ho, wo], &mut columns).unwrap();
+            resize_plane(mode, &x, [h, w], &mut got, [ho, wo], &resize_columns(mode, w, wo)).unwrap();
             assert!(got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()), "{mode:?} {h}x{w} -> {ho}x{wo}");
         }
     }
-    assert!(resize_plane(ResizeMode::LinearHalfPixel, &[0.0; 5], [2, 3], &mut [0.0; 4], [2, 2], &mut columns).is_err());
+    let columns = resize_columns(ResizeMode::LinearHalfPixel, 3, 2);
+    assert!(resize_plane(ResizeMode::LinearHalfPixel, &[0.0; 5], [2, 3], &mut [0.0; 4], [2, 2], &columns).is_err());
+    assert!(
+        resize_plane(ResizeMode::LinearHalfPixel, &[0.0; 6], [2, 3], &mut [0.0; 4], [2, 2], &columns[..1]).is_err()
+    );
 }
 
 /// The Mask R-CNN's two `Resize` forms as one-node graphs (sizes as a constant), through
@@ -686,7 +683,6 @@ fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
     use tract_onnx::pb::{
         GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, ValueInfoProto, tensor_proto::DataType,
     };
-    use tract_onnx::prelude::*;
     use tricons::ops::proto::a_string;
     let mut rng = Rng::new(21);
     let (n, c, h, w) = (1, 3, 12, 17);
@@ -742,13 +738,7 @@ fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
             }),
             ..Default::default()
         };
-        let run = |m: &ModelProto| -> Vec<f32> {
-            let onnx = tricons::ops::onnx_with_custom_ops();
-            let plan = onnx.model_for_proto_model(m).unwrap().into_optimized().unwrap().into_runnable().unwrap();
-            let out = plan.run(tvec![Tensor::from_shape(&[n, c, h, w], &x).unwrap().into_tvalue()]).unwrap();
-            assert_eq!(out[0].shape(), &[n, c, ho, wo]);
-            out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()
-        };
+        let run = |m: &ModelProto| run_one_node_graph(m, &x, &[n, c, h, w], &[n, c, ho, wo]);
         let tract_own = run(&model);
         let mut rewritten = model.clone();
         let report = tricons::segment::rewrite(&mut rewritten).unwrap();
@@ -782,4 +772,15 @@ fn f32_value_info(name: &str, dims: &[usize]) -> tract_onnx::pb::ValueInfoProto 
         r#type: Some(TypeProto { value: Some(type_proto::Value::TensorType(t)), ..Default::default() }),
         ..Default::default()
     }
+}
+
+/// Plan `model` with this crate's loader, run it on the f32 input `x` of `shape`, check the
+/// output's shape and return its values.
+fn run_one_node_graph(model: &tract_onnx::pb::ModelProto, x: &[f32], shape: &[usize], out_shape: &[usize]) -> Vec<f32> {
+    use tract_onnx::prelude::*;
+    let onnx = tricons::ops::onnx_with_custom_ops();
+    let plan = onnx.model_for_proto_model(model).unwrap().into_optimized().unwrap().into_runnable().unwrap();
+    let out = plan.run(tvec![Tensor::from_shape(shape, x).unwrap().into_tvalue()]).unwrap();
+    assert_eq!(out[0].shape(), out_shape);
+    out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()
 }

@@ -47,6 +47,7 @@ pub struct OutputFold<'a> {
 }
 
 /// One int8 layer: `y = relu?(post_scale * (x W) + bias)` with `x` and `W` quantized.
+#[derive(Clone)]
 pub struct Int8Layer {
     k: usize,
     n: usize,

@@ -160,15 +160,14 @@ impl ConvLayer {
             return Err(OpError::BadLength { op: "QConv", what: "weight rows", got: layer.k(), expected: taps });
         }
         let layer = match order {
-            PatchOrder::Planar => layer.with_rows_permuted(&(0..layer.k()).collect::<Vec<_>>()),
+            PatchOrder::Planar => layer.clone(),
             PatchOrder::ChannelsLast => {
                 let c_in = layer.k() / taps;
                 // row (tap, ci) of the result is row (ci, tap) of the ONNX order
                 let perm: Vec<usize> = (0..taps).flat_map(|t| (0..c_in).map(move |ci| ci * taps + t)).collect();
-                layer.with_rows_permuted(&perm)
+                layer.with_rows_permuted(&perm).map_err(kernel_error)?
             }
-        }
-        .map_err(kernel_error)?;
+        };
         Ok(Self { layer, kernel, order })
     }
 

@@ -42,9 +42,8 @@ pub fn parse(_ctx: &ParsingContext, node: &NodeProto) -> TractResult<(Box<dyn In
     let (layer, input_u7) = parse_layer(node)?;
     ensure!(layer.output_params().is_none(), "{name}: QConv writes floats only");
     let attrs = ConvAttributes::parse(node)?;
-    let kernel = attrs.kernel;
-    ensure!(layer.k() % (kernel[0] * kernel[1]) == 0, "{name}: weight rows {} vs kernel {kernel:?}", layer.k());
-    let conv = ConvLayer::new(&layer, kernel).map_err(|e| format_err!("{name}: {e}"))?;
+    // ConvLayer refuses weight rows that are not a whole number of kernel taps
+    let conv = ConvLayer::new(&layer, attrs.kernel).map_err(|e| format_err!("{name}: {e}"))?;
     expand_op(QConv { name: name.clone(), conv: Arc::new(conv), input_u7, attrs })
 }
 

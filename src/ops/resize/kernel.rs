@@ -69,21 +69,29 @@ pub fn resize_plane_reference(
     Ok(())
 }
 
-/// [`resize_plane_reference`]'s bits: the column taps computed once per plane, each
-/// output row from its two source rows (the same expression per element).
+/// The column taps of a `w` -> `wo` resize, for [`resize_plane`] (the same for every plane).
+pub fn resize_columns(mode: ResizeMode, w: usize, wo: usize) -> Vec<(usize, usize, f32)> {
+    if w == 0 {
+        return Vec::new();
+    }
+    (0..wo).map(|ox| source(mode, ox, w, wo)).collect()
+}
+
+/// [`resize_plane_reference`]'s bits: the column taps given ([`resize_columns`] of the same
+/// mode and widths), each output row from its two source rows (the same expression per
+/// element).
 pub fn resize_plane(
     mode: ResizeMode,
     x: &[f32],
     [h, w]: [usize; 2],
     out: &mut [f32],
     [ho, wo]: [usize; 2],
-    columns: &mut Vec<(usize, usize, f32)>,
+    columns: &[(usize, usize, f32)],
 ) -> OpResult {
     if !check(x, h, w, out, ho, wo)? {
         return Ok(());
     }
-    columns.clear();
-    columns.extend((0..wo).map(|ox| source(mode, ox, w, wo)));
+    check_len("Resize2d", "column taps", columns.len(), wo)?;
     for (oy, orow) in out.chunks_exact_mut(wo).enumerate() {
         let (y0, y1, fy) = source(mode, oy, h, ho);
         let (r0, r1) = (&x[y0 * w..(y0 + 1) * w], &x[y1 * w..(y1 + 1) * w]);

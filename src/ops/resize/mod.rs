@@ -12,5 +12,5 @@ pub mod kernel;
 pub mod onnx;
 pub mod tract_op;
 
-pub use kernel::{ResizeMode, resize_plane, resize_plane_reference};
+pub use kernel::{ResizeMode, resize_columns, resize_plane, resize_plane_reference};
 pub use onnx::Resize2d;

@@ -3,7 +3,7 @@
 use tract_onnx::tract_hir::internal::*;
 
 use super::Resize2d;
-use super::kernel::resize_plane;
+use super::kernel::{resize_columns, resize_plane};
 use crate::ops::tract_glue::{TractKernel, input_slice, output};
 
 impl TractKernel for Resize2d {
@@ -19,10 +19,10 @@ impl TractKernel for Resize2d {
         let (planes, h, w) = (shape[0] * shape[1], shape[2], shape[3]);
         let (ho, wo) = (self.out_h, self.out_w);
         let mut out = vec![0f32; planes * ho * wo];
-        let mut columns = Vec::new();
         if h * w > 0 && ho * wo > 0 {
+            let columns = resize_columns(self.mode, w, wo);
             for (src, dst) in x.chunks_exact(h * w).zip(out.chunks_exact_mut(ho * wo)) {
-                resize_plane(self.mode, src, [h, w], dst, [ho, wo], &mut columns)?;
+                resize_plane(self.mode, src, [h, w], dst, [ho, wo], &columns)?;
             }
         }
         Ok(tvec![output(&[shape[0], shape[1], ho, wo], out)?])
