@@ -59,6 +59,36 @@ put("onnx_graph", "upsample.onnx", graph(
     [f("x", [1, 2, 3, 3])], [f("y", [1, 2, 6, 6])]))
 put("onnx_graph", "relu.onnx", graph("relu", helper.make_node("Relu", ["x"], ["y"]), [f("x", [2, 3])], [f("y", [2, 3])]))
 
+# A decoder tail of the form pose::early_gather rewrites: x2 Resize, skip Concat, 1x1 Conv,
+# Relu, 1x1 head, then the pixel gather at `choose` as image_encoder.gather_pixel_features
+# exports it (sizes constant here).
+c = lambda n, v, t=TensorProto.INT64: helper.make_tensor(n, t, [len(v)], v)
+tail_nodes = [
+    helper.make_node("Resize", ["low", "", "scales"], ["up"], mode="linear", coordinate_transformation_mode="half_pixel"),
+    helper.make_node("Concat", ["up", "skip"], ["cat"], axis=1),
+    helper.make_node("Conv", ["cat", "w1"], ["c1"], kernel_shape=[1, 1]),
+    helper.make_node("Relu", ["c1"], ["r1"]),
+    helper.make_node("Conv", ["r1", "w2", "b2"], ["feat"], kernel_shape=[1, 1]),
+    helper.make_node("Reshape", ["feat", "s_bc_hw"], ["flat"]),
+    helper.make_node("Transpose", ["flat"], ["rows_t"], perm=[0, 2, 1]),
+    helper.make_node("Reshape", ["rows_t", "s_rows"], ["table"]),
+    helper.make_node("Add", ["choose", "offsets"], ["at"]),
+    helper.make_node("Reshape", ["at", "s_flat"], ["at_flat"]),
+    helper.make_node("Gather", ["table", "at_flat"], ["picked"], axis=0),
+]
+tail = helper.make_graph(tail_nodes, "pixel_tail", [f("low", [1, 2, 2, 2]), f("skip", [1, 1, 4, 4]),
+                                                    i64("choose", [1, 5])], [f("picked", [5, 2])], [
+    c("scales", [1.0, 1.0, 2.0, 2.0], TensorProto.FLOAT),
+    helper.make_tensor("w1", TensorProto.FLOAT, [3, 3, 1, 1], [0.5, -1.0, 0.25, 1.0, 0.0, -0.5, 0.125, 2.0, 1.0]),
+    helper.make_tensor("w2", TensorProto.FLOAT, [2, 3, 1, 1], [1.0, 0.5, -0.25, -1.0, 0.75, 0.5]),
+    c("b2", [0.1, -0.2], TensorProto.FLOAT),
+    c("s_bc_hw", [1, 2, 16]), c("s_rows", [-1, 2]), helper.make_tensor("offsets", TensorProto.INT64, [1, 1], [0]),
+    c("s_flat", [-1]),
+])
+tail_model = helper.make_model(tail, opset_imports=[helper.make_opsetid("", 17)])
+tail_model.ir_version = 8
+put("onnx_graph", "pixel_tail.onnx", tail_model.SerializeToString())
+
 # ROS 2 bags (MCAP): tiny 4x3 frames on the topics the ros2_bag harness reads, written by
 # the Python mcap-ros2-support writer (uncompressed, zstd, lz4; raw and jpeg colour).
 import io

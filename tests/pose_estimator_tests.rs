@@ -245,28 +245,83 @@ fn worker_threads_give_the_same_bits_as_one_thread() {
     assert_eq!(one.estimate(&frame, &refs, 3).unwrap(), three.estimate(&frame, &refs, 3).unwrap(), "frame {i}");
 }
 
-/// The load-time rewrite (ReduceMax -> ReduceMaxAxis, Resize -> BilinearUpsample2x) against
+/// Run `protos` by tract on the same fixture batch (symbolic batch, 3 instances).
+fn run_variants(est: &PoseEstimator, protos: &[&tract_onnx::pb::ModelProto]) -> Vec<Vec<Vec<f32>>> {
+    let all = cases("pose_net");
+    let inputs = fixture_inputs(&all[..all.len().min(3)]);
+    protos
+        .iter()
+        .map(|proto| {
+            let plan = est.plan_variant(proto).unwrap();
+            let out = plan.run(est.input_tensors(&inputs).unwrap()).unwrap();
+            out.iter().map(|t| t.try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()).collect()
+        })
+        .collect()
+}
+
+/// The node replacements (ReduceMax -> ReduceMaxAxis, Resize -> BilinearUpsample2x) against
 /// the graph as exported, both run by tract on a batch of fixtures: every output the same bits.
 #[test]
 fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
-    use tract_onnx::prelude::*;
+    let est = shipped();
+    let plain = est.float_proto().unwrap();
+    let mut fast = plain.clone();
+    let report = tricons::pose::rewrite::replace_nodes(&mut fast);
+    assert_eq!((report.reduce_max, report.upsample, report.early_gather), (6, 3, 0), "the shipped graph's nodes");
+    let out = run_variants(&est, &[&plain, &fast]);
+    assert_eq!(out[0].len(), out[1].len());
+    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
+        let bits = |v: &[f32]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(x), bits(y), "output {k}");
+    }
+}
+
+/// Largest difference of two outputs relative to the first's largest magnitude.
+fn relative_difference(x: &[f32], y: &[f32]) -> f32 {
+    assert_eq!(x.len(), y.len());
+    let scale = x.iter().fold(0f32, |m, v| m.max(v.abs()));
+    x.iter().zip(y).fold(0f32, |m, (p, q)| m.max((p - q).abs())) / scale
+}
+
+/// The whole load-time rewrite, with the decoder's per-pixel layers moved behind a
+/// `PixelGather` (`pose::early_gather`), against the graph as exported: every output
+/// within 1e-5 of its largest magnitude; the head, the last decoder convolution, its
+/// ReLU and the skip concatenation moved, the last x2 Resize sampled instead of run.
+#[test]
+fn early_pixel_gather_matches_the_unrewritten_graph() {
     let est = shipped();
     let plain = est.float_proto().unwrap();
     let mut fast = plain.clone();
     let report = tricons::pose::rewrite::rewrite(&mut fast);
-    assert_eq!((report.reduce_max, report.upsample), (6, 3), "the shipped graph's nodes");
-    let all = cases("pose_net");
-    let inputs = fixture_inputs(&all[..all.len().min(3)]);
-    let run = |proto| {
-        let plan = est.plan_variant(proto).unwrap();
-        plan.run(est.input_tensors(&inputs).unwrap()).unwrap()
-    };
-    let (a, b) = (run(&plain), run(&fast));
-    assert_eq!(a.len(), b.len());
-    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
-        let bits = |t: &TValue| {
-            t.try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-        };
+    assert_eq!((report.reduce_max, report.upsample, report.early_gather), (6, 2, 4));
+    let nodes = &fast.graph.as_ref().unwrap().node;
+    let gathers: Vec<i64> =
+        nodes.iter().filter(|n| n.op_type == "PixelGather").map(|n| n.attribute[0].i).collect::<Vec<_>>();
+    assert_eq!(gathers.len(), 2, "the upsampled decoder map and the stem");
+    assert!(gathers.contains(&1) && gathers.contains(&0));
+    let out = run_variants(&est, &[&plain, &fast]);
+    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
+        let worst = relative_difference(x, y);
+        assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
+    }
+}
+
+/// The int8 graph (the shipped profile's rewrite) with and without the early pixel
+/// gather: int8 1x1 convolutions compute each pixel alone, so every output has the
+/// same bits.
+#[test]
+fn early_pixel_gather_keeps_the_int8_bits() {
+    let est = shipped();
+    let profile = tricons::quant::QuantProfile::read(&models().join("tricons-pose.int8.json")).unwrap();
+    let mut int8 = est.float_proto().unwrap();
+    tricons::quant::rewrite::apply(&mut int8, &profile).unwrap();
+    let mut plain = int8.clone();
+    tricons::pose::rewrite::replace_nodes(&mut plain);
+    let mut fast = int8;
+    assert_eq!(tricons::pose::rewrite::rewrite(&mut fast).early_gather, 3, "concat, up.2 QConv+Relu, head QConv");
+    let out = run_variants(&est, &[&plain, &fast]);
+    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
+        let bits = |v: &[f32]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(x), bits(y), "output {k}");
     }
 }
@@ -276,7 +331,6 @@ fn kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit() {
 /// output within 1e-5 of its largest magnitude, and every BatchNormalization folded.
 #[test]
 fn batch_norm_folding_matches_the_unfolded_graph() {
-    use tract_onnx::prelude::*;
     let est = shipped();
     let plain = est.float_proto().unwrap();
     let mut folded = plain.clone();
@@ -285,20 +339,10 @@ fn batch_norm_folding_matches_the_unfolded_graph() {
         m.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == "BatchNormalization").count()
     };
     assert_eq!((count(&plain), report.batch_norms, count(&folded)), (24, 24, 0));
-    let all = cases("pose_net");
-    let inputs = fixture_inputs(&all[..all.len().min(3)]);
-    let run = |proto| {
-        let plan = est.plan_variant(proto).unwrap();
-        plan.run(est.input_tensors(&inputs).unwrap()).unwrap()
-    };
-    let (a, b) = (run(&plain), run(&folded));
-    assert_eq!(a.len(), b.len());
-    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
-        let v = |t: &TValue| t.try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec();
-        let (x, y) = (v(x), v(y));
-        let scale = x.iter().fold(0f32, |m, v| m.max(v.abs()));
-        let worst = x.iter().zip(&y).fold(0f32, |m, (p, q)| m.max((p - q).abs()));
-        assert!(worst <= 1e-5 * scale, "output {k}: max difference {worst} at scale {scale}");
+    let out = run_variants(&est, &[&plain, &folded]);
+    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
+        let worst = relative_difference(x, y);
+        assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
     }
 }
 
@@ -373,4 +417,39 @@ fn rotation_from_keypoints_follows_the_card_and_matches_pytorch() {
     });
     let err = PoseEstimator::load(&card).unwrap_err().to_string();
     assert!(err.contains("outputs"), "{err}");
+}
+
+/// The early pixel gather on a hand-made decoder tail (`fuzz/seeds/onnx_graph/pixel_tail.onnx`,
+/// written by fuzz/make_seeds.py): the Resize sampled, the four per-pixel nodes moved, the
+/// picked rows equal to the graph's as written, and an index outside the map an error.
+#[test]
+fn early_pixel_gather_on_a_small_decoder_tail() {
+    use tract_onnx::prelude::*;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds/onnx_graph/pixel_tail.onnx");
+    let plain = tricons::ops::read_onnx_proto(&std::fs::read(path).unwrap()).unwrap();
+    let mut fast = plain.clone();
+    let report = tricons::pose::rewrite::rewrite(&mut fast);
+    assert_eq!((report.early_gather, report.upsample), (4, 0), "{report:?}");
+    assert!(fast.graph.as_ref().unwrap().node.iter().all(|n| n.op_type != "Resize"));
+    let run = |proto: &tract_onnx::pb::ModelProto, choose: &[i64]| {
+        let plan = tricons::ops::onnx_with_custom_ops()
+            .model_for_proto_model(proto)
+            .and_then(|m| m.into_optimized())
+            .and_then(|m| m.into_runnable())
+            .unwrap();
+        let low: Vec<f32> = (0..8).map(|i| (i as f32 * 0.7).sin()).collect();
+        let skip: Vec<f32> = (0..16).map(|i| (i as f32 * 1.3).cos()).collect();
+        plan.run(tvec![
+            Tensor::from_shape(&[1, 2, 2, 2], &low).unwrap().into_tvalue(),
+            Tensor::from_shape(&[1, 1, 4, 4], &skip).unwrap().into_tvalue(),
+            Tensor::from_shape(&[1, 5], choose).unwrap().into_tvalue(),
+        ])
+        .map(|out| out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec())
+    };
+    let choose = [0, 15, 5, 10, 5];
+    let (a, b) = (run(&plain, &choose).unwrap(), run(&fast, &choose).unwrap());
+    assert_eq!(a.len(), 10);
+    assert!(relative_difference(&a, &b) <= 1e-6, "{a:?} vs {b:?}");
+    let err = run(&fast, &[0, 16, 1, 2, 3]).unwrap_err();
+    assert!(format!("{err:#}").contains("PixelGather"), "{err:#}");
 }

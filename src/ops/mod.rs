@@ -38,6 +38,7 @@ pub mod fps;
 pub mod gather;
 pub mod knn;
 pub mod nms;
+pub mod pixel_gather;
 pub mod profile;
 pub mod proto;
 pub mod qconv;
@@ -56,8 +57,9 @@ pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 /// Node types whose wall time [`profile`] accounts: the `ai.tricons` ones of the
 /// exported graph, the two standard operators implemented here (`RoiAlign`,
 /// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
-/// replacements of the pose rewrite, the two of the Mask R-CNN rewrite.
-pub const PROFILED_NODE_TYPES: [&str; 16] = [
+/// replacements of the pose rewrite, the two of the Mask R-CNN rewrite, the pose
+/// rewrite's pixel gather.
+pub const PROFILED_NODE_TYPES: [&str; 17] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -74,6 +76,7 @@ pub const PROFILED_NODE_TYPES: [&str; 16] = [
     "ScatterElements",
     "DepthwiseConv2d",
     "Resize2d",
+    "PixelGather",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -102,6 +105,7 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("BilinearUpsample2x", upsample::onnx::parse);
     reg.insert("DepthwiseConv2d", depthwise::onnx::parse);
     reg.insert("Resize2d", resize::onnx::parse);
+    reg.insert("PixelGather", pixel_gather::onnx::parse);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

@@ -320,26 +320,29 @@ impl PoseEstimator {
     }
 
     /// Run the graph on each of `inputs` (one at a time, on the calling thread) timing
-    /// every node: wall time per operator name (tract's optimised op, e.g. `Conv`,
-    /// `OptMatMul`, `ThreeNN`), summed over the inputs, largest first.
-    pub fn profile_nodes(&self, inputs: &[PoseInput]) -> Result<Vec<(String, std::time::Duration)>> {
+    /// every node: per node in plan order, tract's optimised op name (e.g. `OptMatMul`,
+    /// `ThreeNN`), the node's name and its wall time summed over the inputs.
+    pub fn profile_nodes(&self, inputs: &[PoseInput]) -> Result<Vec<(String, String, std::time::Duration)>> {
         let err = |e: TractError| Error::Inference(format!("{e:#}"));
-        let mut per_op: std::collections::BTreeMap<String, std::time::Duration> = Default::default();
+        let mut per_node: Vec<(String, String, std::time::Duration)> = Vec::new();
         for x in inputs {
             let tensors = self.input_tensors(std::slice::from_ref(x))?;
             let mut state = tract_onnx::tract_core::plan::SimpleState::new(&self.plan).map_err(err)?;
+            let mut i = 0;
             state
                 .run_plan_with_eval(tensors, |ctx, op_state, node, input| {
                     let start = std::time::Instant::now();
                     let out = tract_onnx::tract_core::plan::eval(ctx, op_state, node, input);
-                    *per_op.entry(node.op().name().to_string()).or_default() += start.elapsed();
+                    match per_node.get_mut(i) {
+                        Some(slot) => slot.2 += start.elapsed(),
+                        None => per_node.push((node.op().name().to_string(), node.name.clone(), start.elapsed())),
+                    }
+                    i += 1;
                     out
                 })
                 .map_err(err)?;
         }
-        let mut v: Vec<_> = per_op.into_iter().collect();
-        v.sort_by_key(|x| std::cmp::Reverse(x.1));
-        Ok(v)
+        Ok(per_node)
     }
 
     /// The graph's input tensors for `inputs` (one batch): rgb, pts, choose.

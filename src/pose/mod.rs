@@ -2,11 +2,14 @@
 //!
 //! [`card`] reads the model card that drives every size and constant, [`preprocess`]
 //! builds the network inputs exactly as training did, [`rewrite`] swaps the standard
-//! nodes tract runs slowly for exact `ai.tricons` kernels at load, [`estimator`] runs
+//! nodes tract runs slowly for exact `ai.tricons` kernels at load (and, with
+//! [`early_gather`], runs the image decoder's per-pixel layers on the sampled pixels
+//! only), [`estimator`] runs
 //! the graph ([`PoseEstimator`]) after [`fold`] has folded batch normalisation into
 //! the weights before it.
 
 pub mod card;
+pub mod early_gather;
 pub mod estimator;
 pub mod fold;
 pub mod preprocess;

@@ -7,6 +7,9 @@
 //!   no sizes, no antialiasing or `exclude_outside` -> `BilinearUpsample2x`
 //!   ([`crate::ops::upsample`]): the same taps and evaluation order, bit for bit.
 //!
+//! * The image decoder's per-pixel layers before the sampling of its map at the object's
+//!   pixels run on those pixels only ([`super::early_gather`], `PixelGather`).
+//!
 //! Anything else is left alone; the report counts what was replaced.
 
 use tract_onnx::pb::{GraphProto, ModelProto, NodeProto};
@@ -23,6 +26,8 @@ pub struct RewriteReport {
     pub reduce_max: usize,
     /// `Resize` nodes now `BilinearUpsample2x`.
     pub upsample: usize,
+    /// Per-pixel decoder nodes now run on the sampled pixels ([`super::early_gather`]).
+    pub early_gather: usize,
 }
 
 /// An f32 constant (initializer or `Constant` node) by name.
@@ -52,10 +57,10 @@ fn reduce_max(node: &NodeProto) -> Option<NodeProto> {
     })
 }
 
-/// `BilinearUpsample2x` for a linear half-pixel `Resize` by constant scales (1, 1, 2, 2).
-fn upsample(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
+/// A linear half-pixel `Resize` by constant scales (1, 1, 2, 2), no sizes.
+pub(crate) fn is_bilinear_upsample2x(graph: &GraphProto, node: &NodeProto) -> bool {
     if node.op_type != "Resize" || node.output.len() != 1 {
-        return None;
+        return false;
     }
     let plain = attr_s(node, "mode", "nearest") == "linear"
         && attr_s(node, "coordinate_transformation_mode", "half_pixel") == "half_pixel"
@@ -64,12 +69,14 @@ fn upsample(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
         && attr_s(node, "keep_aspect_ratio_policy", "stretch") == "stretch"
         && attr(node, "axes").is_none();
     // inputs: X, roi (unused outside tf_crop_and_resize), scales, [sizes]
-    let scales = node.input.get(2).filter(|s| !s.is_empty())?;
+    let Some(scales) = node.input.get(2).filter(|s| !s.is_empty()) else { return false };
     let no_sizes = node.input.get(3).is_none_or(|s| s.is_empty());
-    if !plain || !no_sizes || constant_f32(graph, scales)? != [1.0, 1.0, 2.0, 2.0] {
-        return None;
-    }
-    Some(NodeProto {
+    plain && no_sizes && constant_f32(graph, scales).is_some_and(|v| v == [1.0, 1.0, 2.0, 2.0])
+}
+
+/// `BilinearUpsample2x` for a linear half-pixel `Resize` by constant scales (1, 1, 2, 2).
+fn upsample(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
+    is_bilinear_upsample2x(graph, node).then(|| NodeProto {
         name: node.name.clone(),
         op_type: "BilinearUpsample2x".into(),
         domain: DOMAIN.into(),
@@ -79,8 +86,26 @@ fn upsample(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
     })
 }
 
-/// Apply both rewrites to `model` in place.
+/// Apply the rewrites to `model` in place: the early pixel gather first (it drops the
+/// `Resize` it samples through), then the node replacements.
 pub fn rewrite(model: &mut ModelProto) -> RewriteReport {
+    let early_gather = model.graph.as_mut().map_or(0, super::early_gather::gather_pixels_early);
+    let report = RewriteReport { early_gather, ..replace_nodes(model) };
+    if report != RewriteReport::default() {
+        import_domain(model);
+    }
+    report
+}
+
+fn import_domain(model: &mut ModelProto) {
+    if !model.opset_import.iter().any(|o| o.domain == DOMAIN) {
+        model.opset_import.push(tract_onnx::pb::OperatorSetIdProto { domain: DOMAIN.into(), version: 1 });
+    }
+}
+
+/// Only the node-for-node replacements (`ReduceMaxAxis`, `BilinearUpsample2x`): each the
+/// same bits as the node it replaces.
+pub fn replace_nodes(model: &mut ModelProto) -> RewriteReport {
     let mut report = RewriteReport::default();
     let Some(graph) = model.graph.as_mut() else { return report };
     let replaced: Vec<Option<NodeProto>> = graph
@@ -97,8 +122,8 @@ pub fn rewrite(model: &mut ModelProto) -> RewriteReport {
             *node = new;
         }
     }
-    if report != RewriteReport::default() && !model.opset_import.iter().any(|o| o.domain == DOMAIN) {
-        model.opset_import.push(tract_onnx::pb::OperatorSetIdProto { domain: DOMAIN.into(), version: 1 });
+    if report != RewriteReport::default() {
+        import_domain(model);
     }
     report
 }

@@ -397,8 +397,8 @@ fn print_node_profile(
     let (i, frame, masks) = &frames[0];
     let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
     let batch = estimator.prepare(frame, &refs, mix_seed(&[seed, *i as u64]))?.inputs;
-    let single = estimator.profile_nodes(std::slice::from_ref(one))?;
-    let batched = estimator.profile_nodes(&batch)?;
+    let single_nodes = estimator.profile_nodes(std::slice::from_ref(one))?;
+    let (single, batched) = (by_operator(&single_nodes), by_operator(&estimator.profile_nodes(&batch)?));
     let total = |v: &[(String, Duration)]| v.iter().map(|x| x.1.as_secs_f64()).sum::<f64>() * 1e3;
     println!(
         "graph profile: batch 1 {:.1} ms, batch {} {:.1} ms (one run each)",
@@ -411,7 +411,24 @@ fn print_node_profile(
         let b = batched.iter().find(|x| &x.0 == name).map(|x| x.1.as_secs_f64() * 1e3).unwrap_or(f64::NAN);
         println!("{name:<28} {:>10.2} {:>14.2}", d.as_secs_f64() * 1e3, b);
     }
+    let mut slowest = single_nodes;
+    slowest.sort_by_key(|x| std::cmp::Reverse(x.2));
+    println!("slowest nodes (batch 1):");
+    for (op, node, t) in slowest.iter().take(20) {
+        println!("  {:>8.3} ms  {op:<24} {node}", t.as_secs_f64() * 1e3);
+    }
     Ok(())
+}
+
+/// Node times summed per operator name, largest first.
+fn by_operator(nodes: &[(String, String, Duration)]) -> Vec<(String, Duration)> {
+    let mut per_op: std::collections::BTreeMap<&str, Duration> = Default::default();
+    for (op, _, t) in nodes {
+        *per_op.entry(op.as_str()).or_default() += *t;
+    }
+    let mut v: Vec<_> = per_op.into_iter().map(|(op, t)| (op.to_string(), t)).collect();
+    v.sort_by_key(|x| std::cmp::Reverse(x.1));
+    v
 }
 
 /// Per-op time per run and share of the total graph time, from the profile counters.

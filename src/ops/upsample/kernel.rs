@@ -11,13 +11,13 @@ use crate::ops::{OpResult, check_len};
 
 /// The two taps `(index, weight)` of output `x` along an axis of length `n` (n > 0).
 #[inline]
-fn taps(x: usize, n: usize) -> ((usize, f32), (usize, f32)) {
+pub(crate) fn taps(x: usize, n: usize) -> ((usize, f32), (usize, f32)) {
     let i = x / 2;
     if x.is_multiple_of(2) { ((i.saturating_sub(1), 0.25), (i, 0.75)) } else { ((i, 0.75), ((i + 1).min(n - 1), 0.25)) }
 }
 
 #[inline]
-fn lerp(w0: f32, a: f32, w1: f32, b: f32) -> f32 {
+pub(crate) fn lerp(w0: f32, a: f32, w1: f32, b: f32) -> f32 {
     (0.0 + w0 * a) + w1 * b
 }
 
