@@ -2,7 +2,28 @@
 //! `segment::rewrite`, the pose graph's in `pose::rewrite` and `pose::fold`, int8's in
 //! `quant::rewrite`): attributes and constants, read and built.
 
-use tract_onnx::pb::{AttributeProto, GraphProto, NodeProto, TensorProto, attribute_proto, tensor_proto};
+use tract_onnx::pb::{
+    AttributeProto, GraphProto, NodeProto, TensorProto, ValueInfoProto, attribute_proto, tensor_proto,
+};
+
+/// A value's declared dimensions: a number where one is declared, `None` for a symbolic
+/// or missing one; empty when no tensor shape is declared.
+pub fn declared_dims(value: &ValueInfoProto) -> Vec<Option<i64>> {
+    use tract_onnx::pb::tensor_shape_proto::dimension;
+    use tract_onnx::pb::type_proto;
+    match value.r#type.as_ref().and_then(|t| t.value.as_ref()) {
+        Some(type_proto::Value::TensorType(t)) => t
+            .shape
+            .iter()
+            .flat_map(|s| &s.dim)
+            .map(|d| match d.value {
+                Some(dimension::Value::DimValue(v)) => Some(v),
+                _ => None,
+            })
+            .collect(),
+        None => Vec::new(),
+    }
+}
 
 /// A node's attribute by name.
 pub fn attr<'a>(node: &'a NodeProto, name: &str) -> Option<&'a AttributeProto> {

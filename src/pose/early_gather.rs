@@ -165,14 +165,8 @@ fn item_offsets(graph: &GraphProto, offsets: &str, choose: &str, prod: &HashMap<
 
 /// The first (batch) dimension of a graph input, when declared as a number.
 fn declared_batch(graph: &GraphProto, name: &str) -> Option<i64> {
-    use tract_onnx::pb::tensor_shape_proto::dimension;
-    use tract_onnx::pb::type_proto;
     let input = graph.input.iter().find(|i| i.name == name)?;
-    let Some(type_proto::Value::TensorType(t)) = input.r#type.as_ref()?.value.as_ref() else { return None };
-    match t.shape.as_ref()?.dim.first()?.value {
-        Some(dimension::Value::DimValue(v)) => Some(v),
-        _ => None,
-    }
+    proto::declared_dims(input).first().copied().flatten()
 }
 
 /// Apply the rewrite wherever the tail matches; the number of per-pixel nodes moved

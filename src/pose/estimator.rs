@@ -408,8 +408,6 @@ fn decode_outputs(out: &TVec<TValue>, b: usize) -> Result<Vec<InstanceOutcome>> 
 /// The graph's declared inputs (initializers left out) against the card: `rgb (B, 3, S, S)`,
 /// `pts (B, N, 3)`, `choose (B, N)`, whatever the batch dimension.
 fn check_inputs(proto: &ModelProto, cfg: &PreprocessConfig) -> std::result::Result<(), String> {
-    use tract_onnx::pb::tensor_shape_proto::dimension;
-    use tract_onnx::pb::type_proto;
     let graph = proto.graph.as_ref().ok_or("the file holds no graph")?;
     let initializers: std::collections::HashSet<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
     let inputs: Vec<_> = graph.input.iter().filter(|i| !initializers.contains(i.name.as_str())).collect();
@@ -419,18 +417,7 @@ fn check_inputs(proto: &ModelProto, cfg: &PreprocessConfig) -> std::result::Resu
         return Err(format!("the graph has {} inputs, its card 3 (rgb, pts, choose)", inputs.len()));
     }
     for (input, (name, dims)) in inputs.iter().zip(want) {
-        let shape: Vec<Option<i64>> = match input.r#type.as_ref().and_then(|t| t.value.as_ref()) {
-            Some(type_proto::Value::TensorType(t)) => t
-                .shape
-                .iter()
-                .flat_map(|s| &s.dim)
-                .map(|d| match d.value {
-                    Some(dimension::Value::DimValue(v)) => Some(v),
-                    _ => None,
-                })
-                .collect(),
-            None => Vec::new(),
-        };
+        let shape = crate::ops::proto::declared_dims(input);
         let show: Vec<String> = shape.iter().map(|d| d.map_or_else(|| "?".into(), |v| v.to_string())).collect();
         let ok = shape.len() == dims.len() + 1 && shape[1..].iter().zip(&dims).all(|(g, w)| *g == Some(*w));
         if !ok {

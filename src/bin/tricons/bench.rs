@@ -399,7 +399,7 @@ fn print_node_profile(
     let batch = estimator.prepare(frame, &refs, mix_seed(&[seed, *i as u64]))?.inputs;
     let single_nodes = estimator.profile_nodes(std::slice::from_ref(one))?;
     let (single, batched) = (by_operator(&single_nodes), by_operator(&estimator.profile_nodes(&batch)?));
-    let total = |v: &[(String, Duration)]| v.iter().map(|x| x.1.as_secs_f64()).sum::<f64>() * 1e3;
+    let total = |v: &[(String, usize, Duration)]| v.iter().map(|x| x.2.as_secs_f64()).sum::<f64>() * 1e3;
     println!(
         "graph profile: batch 1 {:.1} ms, batch {} {:.1} ms (one run each)",
         total(&single),
@@ -407,8 +407,8 @@ fn print_node_profile(
         total(&batched)
     );
     println!("{:<28} {:>10} {:>14}", "operator", "batch 1 ms", format!("batch {} ms", batch.len()));
-    for (name, d) in single.iter().take(15) {
-        let b = batched.iter().find(|x| &x.0 == name).map(|x| x.1.as_secs_f64() * 1e3).unwrap_or(f64::NAN);
+    for (name, _, d) in single.iter().take(15) {
+        let b = batched.iter().find(|x| &x.0 == name).map(|x| x.2.as_secs_f64() * 1e3).unwrap_or(f64::NAN);
         println!("{name:<28} {:>10.2} {:>14.2}", d.as_secs_f64() * 1e3, b);
     }
     let mut slowest = single_nodes;
@@ -420,14 +420,16 @@ fn print_node_profile(
     Ok(())
 }
 
-/// Node times summed per operator name, largest first.
-fn by_operator(nodes: &[(String, String, Duration)]) -> Vec<(String, Duration)> {
-    let mut per_op: std::collections::BTreeMap<&str, Duration> = Default::default();
+/// Node times summed per operator name, with the node count, largest first.
+pub(crate) fn by_operator(nodes: &[(String, String, Duration)]) -> Vec<(String, usize, Duration)> {
+    let mut per_op: std::collections::BTreeMap<&str, (usize, Duration)> = Default::default();
     for (op, _, t) in nodes {
-        *per_op.entry(op.as_str()).or_default() += *t;
+        let e = per_op.entry(op.as_str()).or_default();
+        e.0 += 1;
+        e.1 += *t;
     }
-    let mut v: Vec<_> = per_op.into_iter().map(|(op, t)| (op.to_string(), t)).collect();
-    v.sort_by_key(|x| std::cmp::Reverse(x.1));
+    let mut v: Vec<_> = per_op.into_iter().map(|(op, (n, t))| (op.to_string(), n, t)).collect();
+    v.sort_by_key(|x| std::cmp::Reverse(x.2));
     v
 }
 

@@ -282,12 +282,6 @@ fn print_node_profile(seg: &Segmenter, image: &tricons::frame::ColorImage, runs:
         }
     }
     let total: Duration = per_node.iter().map(|x| x.2).sum();
-    let mut per_op: std::collections::BTreeMap<&str, (usize, Duration)> = Default::default();
-    for (op, _, t) in &per_node {
-        let e = per_op.entry(op.as_str()).or_default();
-        e.0 += 1;
-        e.1 += *t;
-    }
     let ms = |t: Duration| t.as_secs_f64() * 1e3 / runs as f64;
     println!(
         "node profile of {} ({} nodes, {:.1} ms/frame in nodes), by operator:",
@@ -295,9 +289,7 @@ fn print_node_profile(seg: &Segmenter, image: &tricons::frame::ColorImage, runs:
         per_node.len(),
         ms(total)
     );
-    let mut ops: Vec<_> = per_op.into_iter().collect();
-    ops.sort_by_key(|x| std::cmp::Reverse(x.1.1));
-    for (op, (n, t)) in ops.iter().take(16) {
+    for (op, n, t) in crate::bench::by_operator(&per_node).iter().take(16) {
         println!(
             "  {op:<28} {n:>4} nodes  {:>8.2} ms  {:>5.1}%",
             ms(*t),
