@@ -56,4 +56,10 @@ log "tricons serve: 300 frames, int8 models, --rate max, 2 threads"
     --out "$out/serve.jsonl" --stats-interval 0 --stats-out "$out/serve-stats.json" 2> "$out/serve.log" > /dev/null
 rm -f "$out/serve.jsonl"
 tail -1 "$out/serve.log"
+log "tricons serve: the same with one segment worker (the stage as before --segment-workers)"
+"$bin" serve --recording tests/data/synthnocs-demo --rate max --loop 0 --frames 300 --threads 2 --segment-workers 1 \
+    --model models/tricons-pose.int8.json --segmenter models/maskrcnn-light.int8.json --no-listen \
+    --out "$out/serve-w1.jsonl" --stats-interval 0 --stats-out "$out/serve-w1-stats.json" 2> "$out/serve-w1.log" > /dev/null
+rm -f "$out/serve-w1.jsonl"
+tail -1 "$out/serve-w1.log"
 cat "$out"/*.txt

@@ -424,3 +424,25 @@ fn roi_align_channels_last_equals_the_reference_bit_for_bit() {
         }
     }
 }
+
+/// One Mask R-CNN shared by two threads segmenting at once (as `tricons serve`'s
+/// segment workers do) gives each frame exactly what one thread gives it.
+#[test]
+fn a_shared_segmenter_gives_the_same_detections_on_two_threads() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let seg = std::sync::Arc::new(Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap());
+    let images: Vec<_> = ["000000", "000003"]
+        .iter()
+        .map(|f| {
+            let path = root.join(format!("tests/data/synthnocs-demo/{f}_color.png"));
+            tricons::image_io::read_color_png(&path, tricons::image_io::SizeLimit::Capped).unwrap()
+        })
+        .collect();
+    let alone: Vec<_> = images.iter().map(|img| seg.segment(img).unwrap()).collect();
+    assert!(alone.iter().all(|d| !d.is_empty()));
+    let together: Vec<_> = std::thread::scope(|s| {
+        let handles: Vec<_> = images.iter().map(|img| s.spawn(|| seg.segment(img).unwrap())).collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert_eq!(together, alone);
+}

@@ -1,6 +1,8 @@
 //! The on-device pose service's pipeline: capture -> segment -> pose -> publish.
 //!
-//! Each stage runs in its own thread; bounded queues join them. A live source
+//! Each stage runs in its own thread (the segment stage in
+//! [`PipelineBuilder::segment_workers`] threads, each on a different frame, their
+//! results put back in frame order); bounded queues join them. A live source
 //! (a camera, a paced replay) feeds the first queue newest-frame-wins: when
 //! inference falls behind, the oldest waiting frame is dropped and counted. A
 //! source that is not live is read only as fast as inference goes (nothing is
@@ -82,6 +84,7 @@ pub struct PipelineBuilder {
     stage_queue: usize,
     backoff: (Duration, Duration),
     max_frames: Option<u64>,
+    segment_workers: usize,
     stats: Arc<PipelineStats>,
     stop: StopHandle,
 }
@@ -102,6 +105,7 @@ impl PipelineBuilder {
             stage_queue: DEFAULT_STAGE_QUEUE,
             backoff: (DEFAULT_BACKOFF_INITIAL, DEFAULT_BACKOFF_MAX),
             max_frames: None,
+            segment_workers: 1,
             stats: Arc::new(PipelineStats::new()),
             stop: StopHandle::default(),
         }
@@ -134,6 +138,15 @@ impl PipelineBuilder {
     /// Stops after the source delivered `frames` frames.
     pub fn max_frames(mut self, frames: Option<u64>) -> PipelineBuilder {
         self.max_frames = frames;
+        self
+    }
+
+    /// Frames segmented at once (>= 1; default 1), each by a worker from
+    /// [`Segment::fork`]; results keep the source's order. A stage that cannot fork
+    /// runs with one worker (logged). With a compute-bound segmenter on a multi-core
+    /// machine this lets the segment stage use the cores the pose stage leaves idle.
+    pub fn segment_workers(mut self, workers: usize) -> PipelineBuilder {
+        self.segment_workers = workers.max(1);
         self
     }
 
@@ -184,13 +197,14 @@ impl Pipeline {
     pub fn run(self) -> Result<StatsSnapshot> {
         let PipelineBuilder {
             mut source,
-            mut segment,
+            segment,
             mut estimate,
             mut sinks,
             capture_queue,
             stage_queue,
             backoff,
             max_frames,
+            segment_workers,
             stats,
             stop,
         } = self.b;
@@ -204,6 +218,17 @@ impl Pipeline {
         stats.set_source_state(SourceState::Running);
         log::info!("source: {}", source.describe());
 
+        let mut segmenters = vec![segment];
+        while segmenters.len() < segment_workers {
+            match segmenters[0].fork() {
+                Some(s) => segmenters.push(s),
+                None => {
+                    log::warn!("the segment stage cannot run side by side with itself: 1 worker");
+                    break;
+                }
+            }
+        }
+        let order = SegmentOrder::new(segmenters.len());
         std::thread::scope(|scope| -> Result<StatsSnapshot> {
             let capture = {
                 let (q, stats, stop) = (&q_capture, &stats, &stop);
@@ -212,31 +237,35 @@ impl Pipeline {
                     q.close();
                 })
             };
-            let segmenting = {
-                let (input, output, stats) = (&q_capture, &q_segment, &stats);
-                scope.spawn(move || {
-                    while let Some(frame) = input.pop() {
-                        let t = Instant::now();
-                        match segment.segment(&frame) {
-                            Ok(detections) => {
-                                stats.record(Stage::Segment, t.elapsed());
-                                stats
-                                    .duplicate_detections_dropped
-                                    .store(segment.duplicates_dropped(), Ordering::Relaxed);
-                                let work = Work { frame, detections, instances: Vec::new() };
-                                if output.push(work).is_err() {
-                                    break;
+            let segmenting: Vec<_> = segmenters
+                .into_iter()
+                .map(|mut segment| {
+                    let (input, output, stats, order) = (&q_capture, &q_segment, &stats, &order);
+                    scope.spawn(move || {
+                        while let Some((seq, frame)) = order.take(input) {
+                            let t = Instant::now();
+                            let work = match segment.segment(&frame) {
+                                Ok(detections) => {
+                                    stats.record(Stage::Segment, t.elapsed());
+                                    stats
+                                        .duplicate_detections_dropped
+                                        .fetch_max(segment.duplicates_dropped(), Ordering::Relaxed);
+                                    Some(Work { frame, detections, instances: Vec::new() })
                                 }
-                            }
-                            Err(e) => {
-                                stats.frames_failed.fetch_add(1, Ordering::Relaxed);
-                                log::warn!("frame {}: segmentation failed: {e}", frame.id);
+                                Err(e) => {
+                                    stats.frames_failed.fetch_add(1, Ordering::Relaxed);
+                                    log::warn!("frame {}: segmentation failed: {e}", frame.id);
+                                    None
+                                }
+                            };
+                            if order.put(seq, work, output).is_err() {
+                                break;
                             }
                         }
-                    }
-                    output.close();
+                        order.worker_done(output);
+                    })
                 })
-            };
+                .collect();
             let posing = {
                 let (input, output, stats) = (&q_segment, &q_pose, &stats);
                 scope.spawn(move || {
@@ -287,7 +316,11 @@ impl Pipeline {
                     sink_error.get_or_insert(e);
                 }
             }
-            let joined: Vec<bool> = [capture, segmenting, posing].into_iter().map(|h| h.join().is_err()).collect();
+            let joined: Vec<bool> = std::iter::once(capture)
+                .chain(segmenting)
+                .chain(std::iter::once(posing))
+                .map(|h| h.join().is_err())
+                .collect();
             let panicked = joined.contains(&true);
             stats.set_source_state(SourceState::Ended);
             if panicked {
@@ -298,6 +331,58 @@ impl Pipeline {
                 None => Ok(stats.snapshot()),
             }
         })
+    }
+}
+
+/// Puts the segment workers' results back in the order their frames were taken.
+///
+/// [`SegmentOrder::take`] numbers each frame as it leaves the capture queue;
+/// [`SegmentOrder::put`] holds a result until every earlier frame's is in (a failed
+/// frame's `None` counts), then pushes the run of consecutive results downstream.
+/// The last worker to finish closes the output.
+struct SegmentOrder {
+    taken: std::sync::Mutex<u64>,
+    done: std::sync::Mutex<(u64, std::collections::BTreeMap<u64, Option<Work>>)>,
+    workers_left: std::sync::atomic::AtomicUsize,
+}
+
+impl SegmentOrder {
+    fn new(workers: usize) -> SegmentOrder {
+        SegmentOrder {
+            taken: std::sync::Mutex::new(0),
+            done: std::sync::Mutex::new((0, std::collections::BTreeMap::new())),
+            workers_left: std::sync::atomic::AtomicUsize::new(workers),
+        }
+    }
+
+    /// The next frame and its number; `None` once the input is closed and empty.
+    fn take(&self, input: &BoundedQueue<SourceFrame>) -> Option<(u64, SourceFrame)> {
+        // numbering under the lock keeps the numbers in the queue's order
+        let mut taken = self.taken.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let frame = input.pop()?;
+        let seq = *taken;
+        *taken += 1;
+        Some((seq, frame))
+    }
+
+    /// Hands in frame `seq`'s result; Err when the output was closed.
+    fn put(&self, seq: u64, work: Option<Work>, output: &BoundedQueue<Work>) -> std::result::Result<(), ()> {
+        let mut done = self.done.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let (next, waiting) = &mut *done;
+        waiting.insert(seq, work);
+        while let Some(work) = waiting.remove(next) {
+            *next += 1;
+            if let Some(work) = work {
+                output.push(work).map_err(|_| ())?;
+            }
+        }
+        Ok(())
+    }
+
+    fn worker_done(&self, output: &BoundedQueue<Work>) {
+        if self.workers_left.fetch_sub(1, Ordering::SeqCst) == 1 {
+            output.close();
+        }
     }
 }
 

@@ -32,8 +32,15 @@ pub trait Segment: Send {
     /// The frame's instances.
     fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>>;
     /// Detections dropped as duplicates so far (0 for a stage that never drops any).
+    /// Workers made by [`Segment::fork`] share one count.
     fn duplicates_dropped(&self) -> u64 {
         0
+    }
+    /// Another worker of this stage, sharing its model, so that several frames are
+    /// segmented at once ([`crate::pipeline::PipelineBuilder::segment_workers`]); `None`
+    /// (the default) when the stage cannot run side by side with itself.
+    fn fork(&self) -> Option<Box<dyn Segment>> {
+        None
     }
 }
 
@@ -69,11 +76,28 @@ impl Segment for Segmenter {
     }
 }
 
+/// A Mask R-CNN shared by several segment workers: its plans are built once and each
+/// run has its own state, so the workers only share read-only weights.
+impl Segment for std::sync::Arc<Segmenter> {
+    fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
+        detections_from_segmenter(self, &frame.frame.color)
+    }
+    fn duplicates_dropped(&self) -> u64 {
+        Segmenter::duplicates_dropped(self)
+    }
+    fn fork(&self) -> Option<Box<dyn Segment>> {
+        Some(Box::new(std::sync::Arc::clone(self)))
+    }
+}
+
 /// Ground-truth instance masks (score 1) from the source's annotations.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct GroundTruthMasks;
 
 impl Segment for GroundTruthMasks {
+    fn fork(&self) -> Option<Box<dyn Segment>> {
+        Some(Box::new(*self))
+    }
     fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
         let missing = |what: &str| {
             Error::InvalidArgument(format!(

@@ -385,3 +385,66 @@ fn http_health_metrics_latest_and_stream() {
         text.split_once("\r\n\r\n").unwrap().1.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(lines, out.frames());
 }
+
+/// A segment stage whose frames take uneven times (later frames often finish first on
+/// another worker) and which fails every frame with `seq % 7 == 4`.
+#[derive(Clone)]
+struct Uneven {
+    calls: Arc<Mutex<Vec<(u64, std::thread::ThreadId)>>>,
+}
+impl Segment for Uneven {
+    fn segment(&mut self, frame: &SourceFrame) -> tricons::Result<Vec<Detection>> {
+        self.calls.lock().unwrap().push((frame.seq, std::thread::current().id()));
+        std::thread::sleep(Duration::from_millis([9, 1, 5, 0, 3][(frame.seq % 5) as usize]));
+        if frame.seq % 7 == 4 {
+            return Err(tricons::Error::Inference("uneven: this frame fails".into()));
+        }
+        Ok(Vec::new())
+    }
+    fn fork(&self) -> Option<Box<dyn Segment>> {
+        Some(Box::new(self.clone()))
+    }
+}
+
+#[test]
+fn segment_workers_keep_frame_order_and_count_failed_frames() {
+    for workers in [1, 3] {
+        let out = Collect::default();
+        let segment = Uneven { calls: Arc::default() };
+        let calls = Arc::clone(&segment.calls);
+        // 4 frames x 5 loops = 20 frames, not live: nothing may be dropped.
+        let summary =
+            PipelineBuilder::new(Box::new(demo(Pace::Max, Some(5))), Box::new(segment), Box::new(Slow(Duration::ZERO)))
+                .segment_workers(workers)
+                .sink(Box::new(out.clone()))
+                .build()
+                .run()
+                .unwrap();
+        let want: Vec<u64> = (0..20).filter(|s| s % 7 != 4).collect();
+        assert_eq!(out.frames().iter().map(seq_of).collect::<Vec<_>>(), want, "{workers} worker(s)");
+        assert_eq!((summary.frames_failed, summary.frames_dropped), (3, 0), "{workers} worker(s)");
+        let calls = calls.lock().unwrap();
+        let mut seqs: Vec<u64> = calls.iter().map(|c| c.0).collect();
+        seqs.sort_unstable();
+        assert_eq!(seqs, (0..20).collect::<Vec<_>>(), "each frame segmented once");
+        let threads: std::collections::HashSet<_> = calls.iter().map(|c| c.1).collect();
+        assert!(threads.len() <= workers, "{workers} worker(s) ran on {} threads", threads.len());
+        if workers > 1 {
+            assert!(threads.len() > 1, "the frames were all segmented by one worker");
+        }
+    }
+}
+
+#[test]
+fn a_segment_stage_that_cannot_fork_runs_with_one_worker() {
+    let out = Collect::default();
+    let summary =
+        PipelineBuilder::new(Box::new(demo(Pace::Max, Some(2))), Box::new(NoMasks), Box::new(Slow(Duration::ZERO)))
+            .segment_workers(4)
+            .sink(Box::new(out.clone()))
+            .build()
+            .run()
+            .unwrap();
+    assert_eq!(out.frames().iter().map(seq_of).collect::<Vec<_>>(), (0..8).collect::<Vec<_>>());
+    assert_eq!(summary.frames_published, 8);
+}

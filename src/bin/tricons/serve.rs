@@ -93,6 +93,12 @@ pub struct Args {
     /// Of --threads, those of the Mask R-CNN's matrix products [default: 1].
     #[arg(long, value_name = "N")]
     segmenter_threads: Option<usize>,
+    /// Frames the Mask R-CNN segments at once, each on its own thread (with
+    /// --segmenter-threads for its products), results kept in frame order: the segment
+    /// stage then also uses the time the pose stage leaves a core idle [default: 2 when
+    /// --threads is 2 or more, else 1].
+    #[arg(long, value_name = "N")]
+    segment_workers: Option<usize>,
     /// Also write the results as a ROS 2 bag (detections, markers, overlay images), completed at exit.
     #[cfg(feature = "ros2")]
     #[arg(long, value_name = "OUT.mcap")]
@@ -210,6 +216,7 @@ impl Args {
             stats_out: self.stats_out.or(file.stats_out),
             threads: self.threads.or(file.threads),
             segmenter_threads: self.segmenter_threads.or(file.segmenter_threads),
+            segment_workers: self.segment_workers.or(file.segment_workers),
             #[cfg(feature = "ros2")]
             mcap: self.mcap.or(file.mcap),
             #[cfg(feature = "ros2")]
@@ -224,8 +231,12 @@ pub fn run(args: Args) -> Result<()> {
     let source = args.source.open(masks == MaskSource::Gt, &args.bag)?;
     let model = args.model.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
     let segmenter_threads = args.segmenter_threads.unwrap_or(crate::common::DEFAULT_SEGMENTER_THREADS);
-    let (segment_threads, pose_threads) =
-        split_threads(crate::common::threads(args.threads), segmenter_threads, &masks);
+    let total_threads = crate::common::threads(args.threads);
+    let (segment_threads, pose_threads) = split_threads(total_threads, segmenter_threads, &masks);
+    let segment_workers = args.segment_workers.unwrap_or(if total_threads >= 2 { 2 } else { 1 });
+    if segment_workers == 0 {
+        anyhow::bail!("--segment-workers must be at least 1");
+    }
     let estimator = PoseEstimator::load(&model)
         .and_then(|e| e.with_threads(pose_threads))
         .with_context(|| "loading the pose model (--model)")?;
@@ -244,14 +255,15 @@ pub fn run(args: Args) -> Result<()> {
         }
         MaskSource::Model => {
             let path = args.segmenter.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_SEGMENTER));
-            Box::new(
+            Box::new(std::sync::Arc::new(
                 Segmenter::load(&path)
                     .and_then(|s| s.with_threads(segment_threads))
                     .with_context(|| "loading the segmenter (--segmenter)")?,
-            )
+            ))
         }
     };
-    log::info!("threads: segment {segment_threads}, pose {pose_threads}");
+    let segment_workers = if masks == MaskSource::Model { segment_workers } else { 1 };
+    log::info!("threads: segment {segment_workers} x {segment_threads}, pose {pose_threads}");
     let stats = Arc::new(PipelineStats::new());
     let stop = StopHandle::default();
     stop_on_signals(stop.clone())?;
@@ -297,6 +309,7 @@ pub fn run(args: Args) -> Result<()> {
         PipelineBuilder::new(source, segment, Box::new(PoseStage::new(estimator, args.seed.unwrap_or(0))))
             .capture_queue(args.queue.unwrap_or(DEFAULT_CAPTURE_QUEUE))
             .max_frames(args.frames)
+            .segment_workers(segment_workers)
             .stats(Arc::clone(&stats))
             .stop_handle(stop.clone());
     for sink in sinks {
