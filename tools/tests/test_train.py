@@ -217,3 +217,34 @@ def test_mixed_training_resumes_exactly(recording, tmp_path):
     assert info["steps_per_epoch"] == 3 and info["n_samples"] % 2 == 0
     with pytest.raises(SystemExit):
         _args(recording, full, "--real-per-batch", "1")  # without --real
+
+
+def test_init_from_grows_a_class_agnostic_nocs_head_into_one_per_class():
+    """A class-agnostic checkpoint starts a ``nocs_per_class`` model with the same outputs for
+    every class; only that field (and the name) may differ."""
+    from tricons_pose.model import TriConsPose
+
+    small = CFG.replace(name="agnostic")
+    torch.manual_seed(0)
+    old = TriConsPose(small).eval()
+    init = {"config": small.to_dict(), "model": old.state_dict()}
+    grown_cfg = small.replace(nocs_per_class=True, name="per-class")
+    new = TriConsPose(grown_cfg).eval()
+    new.load_state_dict(T.init_weights(init, grown_cfg, "ck.pt"))
+    B = 6
+    x = {"rgb": torch.randn(B, 3, 32, 32), "pts": torch.randn(B, 256, 3) * 0.05 + torch.tensor([0.0, 0.0, 0.6]),
+         "choose": torch.randint(0, 32 * 32, (B, 256)), "class_id": torch.arange(B)}
+    with torch.no_grad():
+        a, b = old(x), new(x)
+    for k in ("R", "t", "s", "kpt_nocs"):
+        assert torch.allclose(a[k], b[k], atol=1e-6), k
+    # after the heads diverge, each instance reads its own class's row
+    with torch.no_grad():
+        new.nocs_head[-1].bias.view(6, 3)[2] += 0.3
+        c = new(x)
+    changed = (c["kpt_nocs"] - b["kpt_nocs"]).abs().amax(dim=(1, 2)) > 1e-4
+    assert changed.tolist() == [False, False, True, False, False, False]
+    with pytest.raises(ValueError, match="class_id"):
+        new({k: v for k, v in x.items() if k != "class_id"})
+    with pytest.raises(SystemExit, match="more than nocs_per_class"):
+        T.init_weights(init, grown_cfg.replace(blocks=1), "ck.pt")

@@ -99,6 +99,10 @@ class ModelConfig:
 
     # --- heads -----------------------------------------------------------------
     nocs_hidden: int = 256
+    # one NOCS output per category, selected by the instance's class id (AG-Pose's
+    # per-category NOCS head, without its bins); adds a ``class_id`` (B,) int64 input
+    nocs_per_class: bool = False
+    n_classes: int = 6
     pose_hidden: int = 256
     pts_per_kpt: int = 10
     size_init: float = 0.2  # metres; softplus bias so s starts near this value

@@ -551,13 +551,14 @@ class InstanceDataset(Dataset):
 def split_batch(batch: dict) -> tuple[dict, dict | None, dict]:
     """Split a collated batch into (inputs, aug, targets) for ``forward_train(inputs, aug)``.
 
-    inputs: rgb, pts, choose. aug (None without augmentation): the ``aug_``
+    inputs: rgb, pts, choose, class_id (read only by a ``nocs_per_class``
+    model). aug (None without augmentation): the ``aug_``
     keys without the prefix ((B, V, ...) each), plus the model's
     ``forward_train`` keys ``dR`` = R, ``dS`` = scale, ``dT`` = dt (centred
     cloud, camera axes; meaningful for ``scale_axes="camera"``). targets: R,
     t, s, nocs, class_id, handle_visible, sym.
     """
-    inputs = {k: batch[k] for k in ("rgb", "pts", "choose")}
+    inputs = {k: batch[k] for k in ("rgb", "pts", "choose", "class_id")}
     aug = {k[4:]: v for k, v in batch.items() if k.startswith("aug_")} or None
     if aug is not None:
         aug.update(dR=aug["R"], dS=aug["scale"], dT=aug["dt"])

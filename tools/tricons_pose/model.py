@@ -428,7 +428,8 @@ class TriConsPose(nn.Module):
         self.mode = cfg.descriptor if cfg.use_piga else "agpose"
         self.piga = nn.ModuleList([PIGABlock(cfg, self.mode) for _ in range(cfg.blocks)])
         C = cfg.channels
-        self.nocs_head = mlp([C, cfg.nocs_hidden, cfg.nocs_hidden, 3])
+        n_out = 3 * cfg.n_classes if cfg.nocs_per_class else 3
+        self.nocs_head = mlp([C, cfg.nocs_hidden, cfg.nocs_hidden, n_out])
         self.pose_head = PoseHead(cfg)
         self.reconstructor = Reconstructor(cfg)
 
@@ -472,9 +473,23 @@ class TriConsPose(nn.Module):
             f = blk(f, nbr, geo)
         return f
 
-    def heads(self, kpt: Tensor, f: Tensor, centroid: Tensor):
+    def nocs(self, f: Tensor, class_id: Tensor | None) -> Tensor:
+        """Keypoint features (B, M, C) -> NOCS (B, M, 3); with ``nocs_per_class`` the
+        row of each instance's class (``class_id`` (B,) int64, 0-based), selected by a
+        one-hot product so that the export is plain Equal / Cast / Mul / ReduceSum."""
+        raw = self.nocs_head(f)
+        if self.cfg.nocs_per_class:
+            if class_id is None:
+                raise ValueError("nocs_per_class: the inputs need 'class_id' (B,) int64")
+            B, M, _ = raw.shape
+            k = torch.arange(self.cfg.n_classes, device=raw.device)
+            onehot = (class_id.reshape(B, 1) == k.reshape(1, -1)).to(raw.dtype)      # (B, K)
+            raw = (raw.reshape(B, M, self.cfg.n_classes, 3) * onehot.reshape(B, 1, -1, 1)).sum(dim=2)
+        return 0.5 * torch.tanh(raw)
+
+    def heads(self, kpt: Tensor, f: Tensor, centroid: Tensor, class_id: Tensor | None = None):
         """-> kpt_nocs (B, M, 3), R, t (absolute in the frame of ``kpt``), s."""
-        kpt_nocs = 0.5 * torch.tanh(self.nocs_head(f))
+        kpt_nocs = self.nocs(f, class_id)
         R, t_res, s = self.pose_head(kpt - centroid, f, kpt_nocs.detach())
         return kpt_nocs, R, centroid.squeeze(1) + t_res, s
 
@@ -487,7 +502,7 @@ class TriConsPose(nn.Module):
         f_im = self.encode_image(inputs["rgb"], inputs["choose"])
         fused, H, kpt, kpt_feat = self.detect(P, f_im)
         f = self.aggregate(kpt, kpt_feat, P, fused)
-        kpt_nocs, R, t, s = self.heads(kpt, f, torch.zeros_like(c))
+        kpt_nocs, R, t, s = self.heads(kpt, f, torch.zeros_like(c), inputs.get("class_id"))
         return {"R": R, "t": t + c.squeeze(1), "s": s, "kpt_3d": kpt + c, "kpt_nocs": kpt_nocs}
 
     def forward_train(self, inputs: Dict[str, Tensor], aug: Dict[str, Tensor]) -> Dict[str, Tensor]:
@@ -526,7 +541,7 @@ class TriConsPose(nn.Module):
         kpt_views = torch.stack(kpt.split(B, dim=0), dim=1)           # (B, V, M, 3)
         P0, fused0, H0, kpt0, kf0 = Pv[:B], fused[:B], H[:B], kpt[:B], kpt_feat[:B]
         f = self.aggregate(kpt0, kf0, P0, fused0)
-        kpt_nocs, R0, t0, s0 = self.heads(kpt0, f, P0.mean(dim=1, keepdim=True))
+        kpt_nocs, R0, t0, s0 = self.heads(kpt0, f, P0.mean(dim=1, keepdim=True), inputs.get("class_id"))
         recon0, delta0 = self.reconstructor(kpt0, f)
         R_0, T_0, S_0 = dR[:, 0], dT[:, 0], dS[:, 0]
         back = lambda y: invert_view_transform(y, R_0, T_0, S_0) + c  # noqa: E731

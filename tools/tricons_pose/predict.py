@@ -81,7 +81,7 @@ def predict_recording(
         idx = usable[start : start + batch_size]
         samples = [make_sample(ds.prepared(i), cfg.n_points, cfg.crop_size, _rng(ds, i, seed, sampler), None)
                    for i in idx]
-        inputs = {k: torch.stack([s[k] for s in samples]) for k in ("rgb", "pts", "choose")}
+        inputs = {k: torch.stack([s[k] for s in samples]) for k in ("rgb", "pts", "choose", "class_id")}
         out = model(inputs)
         R_kpt = keypoint_rotation(out["kpt_nocs"], out["kpt_3d"]) if rotation_from_keypoints else None
         for b, i in enumerate(idx):

@@ -68,6 +68,32 @@ def build_config(name: str) -> ModelConfig:
     raise SystemExit(f"--config: unknown configuration {name!r} (one of {', '.join(CONFIGS)} or a JSON file)")
 
 
+def init_weights(init: dict, cfg: ModelConfig, path) -> dict:
+    """The state dict of an ``--init-from`` checkpoint for a model of ``cfg``.
+
+    The checkpoint's configuration must equal ``cfg`` (fields added since it was
+    written take their defaults), except that a class-agnostic model may start a
+    ``nocs_per_class`` one (whose name and notes may differ): the NOCS head's last layer is repeated once per class,
+    so the new model starts with the old one's outputs for every class."""
+    try:
+        old = ModelConfig.from_dict(init.get("config") or {})
+    except (TypeError, ValueError) as e:
+        raise SystemExit(f"--init-from: {path}: unreadable model configuration ({e})") from None
+    state = dict(init["model"])
+    if cfg.nocs_per_class and not old.nocs_per_class:
+        grown = old.replace(nocs_per_class=True, n_classes=cfg.n_classes, name=cfg.name, notes=cfg.notes)
+        if grown.to_dict() != cfg.to_dict():
+            raise SystemExit(f"--init-from: {path} differs from the configuration in more than nocs_per_class")
+        last = max(int(k.split(".")[1]) for k in state if k.startswith("nocs_head."))
+        for name in ("weight", "bias"):
+            key = f"nocs_head.{last}.{name}"
+            state[key] = state[key].repeat(cfg.n_classes, *([1] * (state[key].dim() - 1)))
+        return state
+    if old.to_dict() != cfg.to_dict():
+        raise SystemExit(f"--init-from: {path} was written with a different model configuration")
+    return state
+
+
 class EpochSampler(Sampler):
     """Yields (epoch, index) pairs: a seeded permutation per epoch, from position ``start``.
 
@@ -297,7 +323,7 @@ def train(
         if not ckpt_path.exists():
             raise SystemExit(f"--resume: {ckpt_path} does not exist")
         ck = torch.load(ckpt_path, map_location=device, weights_only=False)
-        if ck["config"] != cfg.to_dict():
+        if ModelConfig.from_dict(ck["config"]).to_dict() != cfg.to_dict():
             raise SystemExit(f"--resume: {ckpt_path} was written with a different model configuration")
         if bool((ck.get("args") or {}).get("dinov2_checkpoint")) != bool(dinov2):
             # a frozen ViT changes the optimiser's parameter list
@@ -315,9 +341,7 @@ def train(
         print(f"resumed from {ckpt_path}: epoch {epoch}, step {step}", flush=True)
     elif args.init_from:
         init = torch.load(args.init_from, map_location=device, weights_only=False)
-        if init.get("config") != cfg.to_dict():
-            raise SystemExit(f"--init-from: {args.init_from} was written with a different model configuration")
-        model.load_state_dict(init["model"])
+        model.load_state_dict(init_weights(init, cfg, args.init_from))
         print(f"weights from {args.init_from} (its step {init.get('step')}); fresh optimiser and schedule", flush=True)
     run_info = {"model_config": cfg.to_dict(), "args": vars(args), "n_samples": len(ds),
                 "steps_per_epoch": steps_per_epoch, "cycle_half_steps": cycle, "device": str(device),
