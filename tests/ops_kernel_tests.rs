@@ -407,6 +407,124 @@ fn scatter_elements_equals_its_reference_and_the_onnx_examples() {
     assert!(scatter_elements(&mut data, &[4], &[0; 2], &[0.0; 3], &[2], 0).is_err(), "updates length");
 }
 
+#[test]
+fn scatter_rows_equals_scatter_elements_with_broadcast_indices() {
+    use tricons::ops::scatter_elements::{scatter_elements_reference, scatter_rows};
+    let mut rng = Rng::new(15);
+    let mut below = |n: usize| (rng.next_u64() % n.max(1) as u64) as usize;
+    for case in 0..200 {
+        let rank = 2 + case % 3;
+        let data_shape: Vec<usize> = (0..rank).map(|_| 1 + below(5)).collect();
+        let rows = data_shape[0];
+        let n = 1 + below(7);
+        let mut updates_shape = data_shape.clone();
+        updates_shape[0] = n;
+        let row_len: usize = data_shape[1..].iter().product();
+        // negative and repeated indices; every fifth case one index broadcast to all rows
+        let k = if case % 5 == 0 { 1 } else { n };
+        let indices: Vec<i64> = (0..k).map(|_| below(2 * rows) as i64 - rows as i64).collect();
+        let updates: Vec<f32> = (0..n * row_len).map(|i| i as f32 + 0.25).collect();
+        let data: Vec<f32> = (0..rows * row_len).map(|i| -(i as f32)).collect();
+        // what Expand(Reshape(indices, [-1, 1, ..]), shape(updates)) gives ScatterElements
+        let expanded: Vec<i64> = (0..n * row_len).map(|j| indices[if k == 1 { 0 } else { j / row_len }]).collect();
+        let want = scatter_elements_reference(&data, &data_shape, &expanded, &updates, &updates_shape, 0).unwrap();
+        let mut got = data.clone();
+        scatter_rows(&mut got, &data_shape, &indices, &updates, &updates_shape).unwrap();
+        assert_eq!(got, want, "data {data_shape:?} updates {updates_shape:?} indices {indices:?}");
+    }
+    let mut data = vec![0f32; 6];
+    let err = scatter_rows(&mut data, &[3, 2], &[1, 3], &[1.0; 4], &[2, 2]).unwrap_err();
+    assert_eq!(err, OpError::IndexOutOfRange { op: "ScatterRows", index: 3, len: 3 });
+    assert_eq!(data, [0.0; 6], "an out-of-range index writes nothing");
+    assert!(scatter_rows(&mut data, &[3, 2], &[0, 1], &[1.0; 3], &[1, 3]).is_err(), "rows of another length");
+    assert!(scatter_rows(&mut data, &[3, 2], &[0, 1, 2], &[1.0; 4], &[2, 2]).is_err(), "more indices than rows");
+    assert!(scatter_rows(&mut data, &[4, 2], &[0], &[1.0; 2], &[1, 2]).is_err(), "data length");
+    // no rows at all (a frame without detections): nothing to do, whatever the index
+    scatter_rows::<f32>(&mut [], &[0, 4, 7, 7], &[], &[], &[0, 4, 7, 7]).unwrap();
+    scatter_rows::<f32>(&mut [], &[0, 4, 7, 7], &[5], &[], &[0, 4, 7, 7]).unwrap();
+}
+
+/// torchvision's level merge, `ScatterElements(data, Expand(Reshape(i, [-1, 1, 1, 1]),
+/// Shape(updates)), updates)` along axis 0: rewritten to `ScatterRows` by the Mask R-CNN
+/// loader, the same bits as tract's own `ScatterElements`; other shapes are left alone.
+#[test]
+fn scatter_by_rows_is_rewritten_and_agrees_with_tracts_own() {
+    use tract_onnx::pb::tensor_proto::DataType;
+    use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, ValueInfoProto};
+    use tract_onnx::prelude::*;
+    let io = |name: &str| ValueInfoProto { name: name.into(), ..Default::default() };
+    let node = |op: &str, inputs: &[&str], output: &str| NodeProto {
+        name: output.into(),
+        op_type: op.into(),
+        input: inputs.iter().map(|s| s.to_string()).collect(),
+        output: vec![output.into()],
+        ..Default::default()
+    };
+    let model = |shape: Vec<i64>| {
+        let mut idx_info = f32_value_info("idx", &[3]);
+        if let Some(tract_onnx::pb::type_proto::Value::TensorType(t)) =
+            idx_info.r#type.as_mut().and_then(|t| t.value.as_mut())
+        {
+            t.elem_type = DataType::Int64 as i32;
+        }
+        let rows_shape = TensorProto {
+            name: "rows_shape".into(),
+            dims: vec![shape.len() as i64],
+            data_type: DataType::Int64 as i32,
+            int64_data: shape,
+            ..Default::default()
+        };
+        ModelProto {
+            ir_version: 8,
+            opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
+            graph: Some(GraphProto {
+                node: vec![
+                    node("Reshape", &["idx", "rows_shape"], "idx4"),
+                    node("Shape", &["updates"], "updates_shape"),
+                    node("Expand", &["idx4", "updates_shape"], "idx_full"),
+                    node("ScatterElements", &["data", "idx_full", "updates"], "y"),
+                ],
+                initializer: vec![rows_shape],
+                input: vec![f32_value_info("data", &[5, 4, 2, 3]), idx_info, f32_value_info("updates", &[3, 4, 2, 3])],
+                output: vec![io("y")],
+                ..Default::default()
+            }),
+            ..Default::default()
+        }
+    };
+    let data: Vec<f32> = (0..5 * 24).map(|i| i as f32 * 0.5).collect();
+    let updates: Vec<f32> = (0..3 * 24).map(|i| -(i as f32) - 1.0).collect();
+    let inputs = || {
+        tvec![
+            Tensor::from_shape(&[5, 4, 2, 3], &data).unwrap().into_tvalue(),
+            Tensor::from_shape(&[3], &[4i64, -5, 1]).unwrap().into_tvalue(),
+            Tensor::from_shape(&[3, 4, 2, 3], &updates).unwrap().into_tvalue(),
+        ]
+    };
+    let run = |onnx: &tract_onnx::Onnx, m: &ModelProto| -> Vec<f32> {
+        let plan = onnx.model_for_proto_model(m).unwrap().into_optimized().unwrap().into_runnable().unwrap();
+        let out = plan.run(inputs()).unwrap();
+        assert_eq!(out[0].shape(), [5, 4, 2, 3]);
+        out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()
+    };
+    let original = model(vec![-1, 1, 1, 1]);
+    let tract_own = run(&tract_onnx::onnx(), &original);
+    let mut rewritten = original.clone();
+    let report = tricons::segment::rewrite(&mut rewritten).unwrap();
+    assert_eq!(report.scatter_rows, 1);
+    assert_eq!(rewritten.graph.as_ref().unwrap().node[3].op_type, "ScatterRows");
+    let ours = run(&tricons::ops::onnx_with_custom_ops(), &rewritten);
+    assert!(ours.iter().zip(&tract_own).all(|(a, b)| a.to_bits() == b.to_bits()));
+    // indices 4, -5 (row 0 from the end), 1
+    assert_eq!((&ours[96..120], &ours[..24], &ours[24..48]), (&updates[..24], &updates[24..48], &updates[48..]));
+    assert_eq!(&ours[48..96], &data[48..96], "rows 2 and 3 untouched");
+    // indices that vary inside a row are not a row scatter
+    for shape in [vec![-1, 4, 1, 1], vec![-1]] {
+        let mut m = model(shape.clone());
+        assert_eq!(tricons::segment::rewrite(&mut m).unwrap().scatter_rows, 0, "reshape to {shape:?}");
+    }
+}
+
 /// One-node ONNX graph `ScatterElements(data, indices, updates)` run by tract's own op and
 /// by this crate's (`ops::onnx_with_custom_ops`): the same bits.
 #[test]

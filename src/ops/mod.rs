@@ -58,8 +58,8 @@ pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 /// exported graph, the two standard operators implemented here (`RoiAlign`,
 /// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
 /// replacements of the pose rewrite, the two of the Mask R-CNN rewrite, the pose
-/// rewrite's pixel gather.
-pub const PROFILED_NODE_TYPES: [&str; 17] = [
+/// rewrite's pixel gather and the Mask R-CNN rewrite's row scatter.
+pub const PROFILED_NODE_TYPES: [&str; 18] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -77,6 +77,7 @@ pub const PROFILED_NODE_TYPES: [&str; 17] = [
     "DepthwiseConv2d",
     "Resize2d",
     "PixelGather",
+    "ScatterRows",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -106,6 +107,7 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("DepthwiseConv2d", depthwise::onnx::parse);
     reg.insert("Resize2d", resize::onnx::parse);
     reg.insert("PixelGather", pixel_gather::onnx::parse);
+    reg.insert("ScatterRows", scatter_elements::onnx::parse_rows);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

@@ -207,12 +207,13 @@ impl Segmenter {
         let score_floor = rewrite::score_floor(&proto).map_err(&err)?;
         log::info!(
             "{}: {} If inlined, {} Slice clamped, {} depthwise Conv as DepthwiseConv2d, {} Resize as Resize2d, \
-             masks {}, score floor {}",
+             {} ScatterElements as ScatterRows, masks {}, score floor {}",
             onnx_path.display(),
             report.ifs_inlined,
             report.slices_clamped,
             report.depthwise,
             report.resize,
+            report.scatter_rows,
             if report.pasted_output.is_some() { "pasted in Rust" } else { "from the graph" },
             match score_floor {
                 Some(f) => format!("{f} raised to the card's {} before NMS and the mask head", card.score_threshold),

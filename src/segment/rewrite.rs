@@ -18,7 +18,11 @@
 //! ([`crate::ops::depthwise`]), which tract's generic scalar walk ran at ~2 G
 //! multiply-adds/s; a **`Resize` by `sizes`** in the two forms torchvision exports
 //! (linear with half-pixel coordinates: the input transform; nearest with asymmetric
-//! coordinates and floor: the FPN) becomes `Resize2d` ([`crate::ops::resize`]).
+//! coordinates and floor: the FPN) becomes `Resize2d` ([`crate::ops::resize`]); a
+//! **`ScatterElements` along axis 0 whose indices are `Expand(Reshape(i, [-1, 1, ..]))`**
+//! (the multi-scale RoI pooling's merge of its FPN levels) becomes `ScatterRows`
+//! ([`crate::ops::scatter_elements`]), which copies whole rows by `i` without the
+//! broadcast index tensor.
 
 use std::collections::{HashMap, HashSet};
 
@@ -44,6 +48,8 @@ pub struct RewriteReport {
     pub depthwise: usize,
     /// `Resize` nodes now `Resize2d`.
     pub resize: usize,
+    /// `ScatterElements` nodes now `ScatterRows`.
+    pub scatter_rows: usize,
 }
 
 /// Apply the rewrites to `model` in place. Patterns that are absent are left
@@ -55,10 +61,11 @@ pub fn rewrite(model: &mut ModelProto) -> Result<RewriteReport, String> {
     let slices_clamped = clamp_slices(graph);
     let depthwise = replace_nodes(graph, depthwise_conv);
     let resize = replace_nodes(graph, |_, node| resize_by_sizes(node));
-    if depthwise + resize > 0 && !model.opset_import.iter().any(|o| o.domain == TRICONS_DOMAIN) {
+    let scatter_rows = replace_nodes(graph, scatter_by_rows);
+    if depthwise + resize + scatter_rows > 0 && !model.opset_import.iter().any(|o| o.domain == TRICONS_DOMAIN) {
         model.opset_import.push(tract_onnx::pb::OperatorSetIdProto { domain: TRICONS_DOMAIN.into(), version: 1 });
     }
-    Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output, depthwise, resize })
+    Ok(RewriteReport { ifs_inlined, slices_clamped, pasted_output, depthwise, resize, scatter_rows })
 }
 
 /// `Resize2d` for a `Resize(X, roi, scales, sizes)` with only `sizes` given and the
@@ -97,6 +104,35 @@ fn resize_by_sizes(node: &NodeProto) -> Option<NodeProto> {
 }
 
 const TRICONS_DOMAIN: &str = "ai.tricons";
+
+/// `ScatterRows(data, i, updates)` for a `ScatterElements(data, Expand(Reshape(i, s), _),
+/// updates)` along axis 0 without reduction, where `s` is a constant `[-1 or n, 1, .., 1]`
+/// of rank at least 2: every element of update row `r` then has index `i[r]` (ONNX
+/// requires the indices' shape to be the updates'); `None` for anything else.
+fn scatter_by_rows(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
+    if node.op_type != "ScatterElements" || !node.domain.is_empty() || node.input.len() != 3 {
+        return None;
+    }
+    if proto::attr_i(node, "axis", 0) != 0 || proto::attr_s(node, "reduction", "none") != "none" {
+        return None;
+    }
+    let producer = |name: &str| graph.node.iter().find(|n| n.output.iter().any(|o| o == name));
+    let expand = producer(&node.input[1]).filter(|n| n.op_type == "Expand" && n.input.len() == 2)?;
+    let reshape = producer(&expand.input[0]).filter(|n| n.op_type == "Reshape" && n.input.len() == 2)?;
+    if proto::attr_i(reshape, "allowzero", 0) != 0 {
+        return None;
+    }
+    let shape = constant_i64(graph, &reshape.input[1])?;
+    let rows_only = shape.len() >= 2 && (shape[0] == -1 || shape[0] > 0) && shape[1..].iter().all(|&d| d == 1);
+    rows_only.then(|| NodeProto {
+        name: node.name.clone(),
+        op_type: "ScatterRows".into(),
+        domain: TRICONS_DOMAIN.into(),
+        input: vec![node.input[0].clone(), reshape.input[0].clone(), node.input[2].clone()],
+        output: node.output.clone(),
+        ..Default::default()
+    })
+}
 
 /// `DepthwiseConv2d` for a 2-D `Conv` with explicit (or no) padding, `group` = C and a
 /// constant weight `(C, 1, kh, kw)` (and bias, if any); `None` for anything else.

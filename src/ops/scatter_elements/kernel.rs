@@ -128,3 +128,57 @@ pub fn scatter_elements_reference<T: Copy>(
     }
     Ok(out)
 }
+
+/// `data[indices[r]] = updates[r]` for whole rows along axis 0 (row `r` of `updates`,
+/// shape `updates_shape`, over the row of `data`, shape `data_shape`, that its index
+/// names); `indices` holds one index per update row, or a single one for all (the
+/// broadcast an `Expand` of a length-1 index gives). Negative indices count from the end;
+/// the last of several updates to one row wins. The same as [`scatter_elements`] along
+/// axis 0 with the indices broadcast over each row, without them; nothing is written when
+/// an index is out of range.
+pub fn scatter_rows<T: Copy>(
+    data: &mut [T],
+    data_shape: &[usize],
+    indices: &[i64],
+    updates: &[T],
+    updates_shape: &[usize],
+) -> OpResult {
+    const OP: &str = "ScatterRows";
+    let (Some((&rows, row_dims)), Some((&n, update_row_dims))) =
+        (data_shape.split_first(), updates_shape.split_first())
+    else {
+        return Err(OpError::Kernel { op: OP, message: "data and updates need a row axis".into() });
+    };
+    if row_dims != update_row_dims {
+        return Err(OpError::Kernel {
+            op: OP,
+            message: format!("data rows are {row_dims:?}, update rows {update_row_dims:?}"),
+        });
+    }
+    let row_len: usize = row_dims.iter().product();
+    check_len(OP, "data", data.len(), rows * row_len)?;
+    check_len(OP, "updates", updates.len(), n * row_len)?;
+    if n == 0 {
+        return Ok(());
+    }
+    if !(indices.len() == n || indices.len() == 1) {
+        return Err(OpError::Kernel { op: OP, message: format!("{} indices for {n} update rows", indices.len()) });
+    }
+    let mut targets = Vec::with_capacity(indices.len());
+    for &i in indices {
+        let k = if i < 0 { i + rows as i64 } else { i };
+        targets.push(crate::ops::checked_index(OP, k, rows).map_err(|_| OpError::IndexOutOfRange {
+            op: OP,
+            index: i,
+            len: rows,
+        })?);
+    }
+    if row_len == 0 {
+        return Ok(());
+    }
+    for (r, update) in updates.chunks_exact(row_len).enumerate() {
+        let t = targets[if targets.len() == 1 { 0 } else { r }];
+        data[t * row_len..(t + 1) * row_len].copy_from_slice(update);
+    }
+    Ok(())
+}

@@ -6,7 +6,7 @@ use tract_onnx::tract_core::ops::array::ScatterReduction;
 use tract_onnx::tract_hir::internal::*;
 use tract_onnx::tract_hir::ops::array::ScatterElements as TractScatterElements;
 
-use crate::ops::tract_glue::{TypedWrapper, onnx_rules};
+use crate::ops::tract_glue::{TypedWrapper, expand_op, onnx_rules};
 
 /// The typed op: `ScatterElements(data, indices, updates)` along a non-negative `axis`,
 /// no reduction, data and updates of one [`ScatterElements::is_fast_type`] type.
@@ -77,6 +77,25 @@ impl Expansion for ScatterElementsNode {
 onnx_rules!(ScatterElements, "ScatterElements", inputs: 3, outputs: 1, |_op, s, inputs, outputs| {
     s.equals(&inputs[0].rank, &inputs[1].rank)?;
     s.equals(&inputs[1].shape, &inputs[2].shape)?;
+    s.equals(&outputs[0].datum_type, &inputs[0].datum_type)?;
+    s.equals(&outputs[0].shape, &inputs[0].shape)
+});
+
+/// `ScatterRows(data, indices, updates) -> data'` (domain `ai.tricons`): rows of `updates`
+/// written over rows `indices` of `data` along axis 0 ([`super::kernel::scatter_rows`]).
+/// The Mask R-CNN loader puts it in for a `ScatterElements` along axis 0 whose indices
+/// are a row index vector broadcast over each row ([`crate::segment::rewrite`]).
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct ScatterRows;
+
+/// Build the op (no attributes).
+pub fn parse_rows(_ctx: &ParsingContext, _node: &NodeProto) -> TractResult<(Box<dyn InferenceOp>, Vec<String>)> {
+    expand_op(ScatterRows)
+}
+
+onnx_rules!(ScatterRows, "ScatterRows", inputs: 3, outputs: 1, |_op, s, inputs, outputs| {
+    s.equals(&inputs[0].datum_type, &inputs[2].datum_type)?;
+    s.equals(&inputs[0].rank, &inputs[2].rank)?;
     s.equals(&outputs[0].datum_type, &inputs[0].datum_type)?;
     s.equals(&outputs[0].shape, &inputs[0].shape)
 });
