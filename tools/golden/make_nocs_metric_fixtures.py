@@ -175,7 +175,12 @@ def to_reference_frame(frame):
 def run_reference(ns, frames, agpose=False):
     """Runs the reference on tricons-format frames; returns {class: {metric:
     fraction or nan}} and {metric: the reference's mean row}."""
-    results = [to_reference_frame(f) for f in frames]
+    return run_reference_results(ns, [to_reference_frame(f) for f in frames], agpose)
+
+
+def run_reference_results(ns, results, agpose=False):
+    """Runs the reference on its own per-image result dicts (``gt_*`` and ``pred_*``
+    arrays, as its evaluation unpickles them); returns as :func:`run_reference`."""
     with tempfile.TemporaryDirectory() as log_dir, contextlib.redirect_stdout(io.StringIO()):
         with np.errstate(invalid="ignore", divide="ignore"):
             if agpose:

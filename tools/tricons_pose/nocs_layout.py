@@ -8,6 +8,7 @@ The layout, as the NOCS authors distribute it and SPD / DualPoseNet / AG-Pose re
     ROOT/CAMERA/{train,val}/SSSSS/NNNN_{color,composed,mask,coord}.png, NNNN_meta.txt
     ROOT/Real/train/scene_K/NNNN_label.pkl      (SPD's preprocessing: poses per image)
     ROOT/obj_models/{real_train,real_test,camera_train,camera_val}.pkl  (model points, NOCS space)
+    ROOT/obj_models/{real_train,real_test}/MODEL.txt  (the model's box size, NOCS units: NOCS's loader)
     ROOT/gts/real_test/results_real_test_scene_K_NNNN.pkl     (ground truth for evaluation)
     ROOT/segmentation_results/real_test/results_test_scene_K_NNNN.pkl  (published Mask R-CNN)
 
@@ -131,6 +132,11 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
             # the model's points: its box corners in NOCS units (2 max |p| = the extents)
             corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
             models[model] = (0.5 * corners * extents).astype(np.float32)
+            if split.startswith("real"):
+                # what the NOCS repository's own loader reads for a scanned model's scale
+                box = root / "obj_models" / split / f"{model}.txt"
+                box.parent.mkdir(parents=True, exist_ok=True)
+                box.write_text(" ".join(f"{v:.9g}" for v in extents) + "\n", encoding="utf-8")
             lines.append(f"{inst.id} {class_id(inst.cls)} {model}")
             label_pkl["instance_ids"].append(inst.id)
             label_pkl["class_ids"].append(class_id(inst.cls))
