@@ -113,7 +113,7 @@ for arch in "${wanted[@]}"; do
         suites=()
         for f in tests/*.rs; do
             name=$(basename "$f" .rs)
-            case "$name" in cli_tests | service_tests) ;; *) suites+=(--test "$name") ;; esac
+            case "$name" in cli_tests | service_tests | bad_input_tests) ;; *) suites+=(--test "$name") ;; esac
         done
         # ISA_INDEPENDENT: control logic whose numerics the golden-fixture tests already
         # cover on this ISA (each 1-8 s on the host, 30-80x that under qemu; timings in

@@ -46,7 +46,15 @@ impl Intrinsics {
     /// Checks that the intrinsics describe a usable camera.
     pub fn validate(&self) -> Result<(), String> {
         if self.width == 0 || self.height == 0 {
-            return Err(format!("image size {}x{} is empty", self.width, self.height));
+            return Err(format!("image size (width x height) {}x{} is empty", self.width, self.height));
+        }
+        if u64::from(self.width) * u64::from(self.height) > crate::image_io::MAX_PIXELS {
+            return Err(format!(
+                "image size (width x height) {}x{} is more than the {} pixels a frame may have",
+                self.width,
+                self.height,
+                crate::image_io::MAX_PIXELS
+            ));
         }
         for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
             if !(v.is_finite() && v > 0.0) {

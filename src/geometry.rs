@@ -120,15 +120,28 @@ pub fn rotation_angle_deg(r1: &Mat3, r2: &Mat3) -> f64 {
 
 /// How a pose is written in JSON: `R` (3x3, row-major) and `t` (metres), or a
 /// 4x4 `RT` whose rotation block may be scaled (NOCS style).
+/// A pose is read flattened into its parent (an instance), where serde loses the field
+/// path of an error; each field therefore names itself in its errors.
 #[derive(Serialize, Deserialize)]
 struct PoseWire {
-    #[serde(rename = "R", skip_serializing_if = "Option::is_none")]
+    #[serde(rename = "R", default, skip_serializing_if = "Option::is_none", deserialize_with = "named_r")]
     r: Option<[[f64; 3]; 3]>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "named_t")]
     t: Option<[f64; 3]>,
-    #[serde(rename = "RT", default, skip_serializing)]
+    #[serde(rename = "RT", default, skip_serializing, deserialize_with = "named_rt")]
     rt: Option<[[f64; 4]; 4]>,
 }
+
+macro_rules! named_field {
+    ($fn:ident, $name:literal, $ty:ty) => {
+        fn $fn<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<$ty>, D::Error> {
+            <Option<$ty>>::deserialize(d).map_err(|e| serde::de::Error::custom(format!("field {}: {e}", $name)))
+        }
+    };
+}
+named_field!(named_r, "R", [[f64; 3]; 3]);
+named_field!(named_t, "t", [f64; 3]);
+named_field!(named_rt, "RT", [[f64; 4]; 4]);
 
 impl TryFrom<PoseWire> for Pose {
     type Error = String;

@@ -55,7 +55,7 @@ pub enum SizeLimit {
         /// Where the size comes from, for the error ("as in the manifest").
         source: &'static str,
     },
-    /// Any size up to [`MAX_PIXELS`] pixels.
+    /// Any size up to [`MAX_PIXELS`] pixels (the cap holds for `Exactly` too).
     Capped,
 }
 
@@ -66,21 +66,25 @@ impl SizeLimit {
     }
 
     fn check(self, path: &Path, width: u32, height: u32) -> Result<()> {
-        match self {
-            SizeLimit::Exactly { width: w, height: h, source } if (width, height) != (w, h) => {
-                Err(Error::ImageFormat {
+        if let SizeLimit::Exactly { width: w, height: h, source } = self {
+            if (width, height) != (w, h) {
+                return Err(Error::ImageFormat {
                     path: path.to_path_buf(),
                     expected: format!("{w}x{h} {source}"),
                     found: format!("{width}x{height}"),
-                })
+                });
             }
-            SizeLimit::Capped if u64::from(width) * u64::from(height) > MAX_PIXELS => Err(Error::ImageFormat {
+        }
+        // The cap holds whatever size is expected: an expected size comes from a file too
+        // (a manifest declaring 60000 x 60000 beside a bomb of that size).
+        if u64::from(width) * u64::from(height) > MAX_PIXELS {
+            return Err(Error::ImageFormat {
                 path: path.to_path_buf(),
                 expected: format!("at most {MAX_PIXELS} pixels"),
                 found: format!("a header declaring {width}x{height}"),
-            }),
-            _ => Ok(()),
+            });
         }
+        Ok(())
     }
 }
 
@@ -281,6 +285,10 @@ mod tests {
         let exact = SizeLimit::Exactly { width: 640, height: 480, source: "as in the manifest" };
         let err = read_png(&path, exact).unwrap_err().to_string();
         assert!(err.contains("640x480 as in the manifest") && err.contains("60000x60000"), "{err}");
+        // an expected size beyond the cap (a manifest of the bomb's own size) is refused too
+        let same = SizeLimit::Exactly { width: 60_000, height: 60_000, source: "as in the manifest" };
+        let err = read_png(&path, same).unwrap_err().to_string();
+        assert!(err.contains(&format!("at most {MAX_PIXELS} pixels")), "{err}");
         // within the limits, the same kind of file reaches the decoder (no pixel data: an error, not a panic)
         std::fs::write(&path, header_only_png(640, 480)).unwrap();
         let err = read_png(&path, exact).unwrap_err().to_string();

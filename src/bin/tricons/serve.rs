@@ -198,6 +198,10 @@ impl Args {
         };
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let file: Args = tricons::error::from_json_str(path, &text).context("not a serve config")?;
+        if let (None, Some(addr)) = (&self.listen, &file.listen) {
+            tricons::output::http::check_listen_address(addr, self.listen_any || file.listen_any)
+                .with_context(|| format!("{}: field listen", path.display()))?;
+        }
         Ok(Args {
             config: self.config,
             source: self.source.or(file.source),
