@@ -66,14 +66,14 @@ impl SizeLimit {
     }
 
     fn check(self, path: &Path, width: u32, height: u32) -> Result<()> {
-        if let SizeLimit::Exactly { width: w, height: h, source } = self {
-            if (width, height) != (w, h) {
-                return Err(Error::ImageFormat {
-                    path: path.to_path_buf(),
-                    expected: format!("{w}x{h} {source}"),
-                    found: format!("{width}x{height}"),
-                });
-            }
+        if let SizeLimit::Exactly { width: w, height: h, source } = self
+            && (width, height) != (w, h)
+        {
+            return Err(Error::ImageFormat {
+                path: path.to_path_buf(),
+                expected: format!("{w}x{h} {source}"),
+                found: format!("{width}x{height}"),
+            });
         }
         // The cap holds whatever size is expected: an expected size comes from a file too
         // (a manifest declaring 60000 x 60000 beside a bomb of that size).

@@ -368,6 +368,42 @@ fn nocs_layout_recovers_the_pose_from_nocs_map_and_depth() {
     assert!(mask.data.iter().all(|&l| l == 0 || l == 3));
 }
 
+/// CAMERA25 as SPD / AG-Pose keep it: `camera/val/00000/` (any case) with the composed
+/// depth in `camera_full_depths/val/00000/`; its `_depth.png` (objects only) is not read,
+/// 32001 is no depth, and a missing composed file is an error naming it.
+#[test]
+fn nocs_layout_camera_scenes_read_the_composed_depth() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("NOCS/camera/val/00000");
+    fs::create_dir_all(&scene).unwrap();
+    write_nocs_scene(&scene);
+    let depth = tricons::image_io::read_png(&scene.join("0000_depth.png"), tricons::image_io::SizeLimit::Capped)
+        .unwrap()
+        .samples_u16();
+    let mut composed: Vec<u8> = depth.iter().flat_map(|&d| [(d & 0xFF) as u8, (d >> 8) as u8, 0]).collect();
+    composed[..3].copy_from_slice(&[(32001 & 0xFF) as u8, (32001 >> 8) as u8, 0]);
+    let full = dir.path().join("NOCS/camera_full_depths/val/00000");
+    fs::create_dir_all(&full).unwrap();
+    fs::write(
+        full.join("0000_composed.png"),
+        encode_png(640, 480, png::ColorType::Rgb, png::BitDepth::Eight, &composed).unwrap(),
+    )
+    .unwrap();
+    // the objects-only _depth.png of CAMERA: zero everywhere here, so reading it would show
+    write_depth_png(&scene.join("0000_depth.png"), &DepthImage::new(640, 480, DEPTH_SCALE_MM)).unwrap();
+    let rec = open_recording(&scene).unwrap();
+    assert_eq!(rec.intrinsics(), Intrinsics::CAMERA25);
+    let frame = rec.read_frame(0).unwrap();
+    assert_eq!(frame.depth.data[0], 0, "32001 is no depth");
+    assert_eq!(frame.depth.data[1..], depth[1..]);
+    fs::remove_file(full.join("0000_composed.png")).unwrap();
+    let err = err_text(rec.read_frame(0).unwrap_err());
+    assert!(
+        err.contains("camera_full_depths/val/00000/0000_composed.png") && err.contains("rendered objects only"),
+        "{err}"
+    );
+}
+
 #[test]
 fn nocs_layout_bad_meta_and_depth_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();

@@ -1,6 +1,8 @@
 //! Reader for the NOCS dataset layout (REAL275 / CAMERA25 scene folders):
-//! `<id>_color.png`, `<id>_depth.png` (or CAMERA's `<id>_composed.png`),
-//! `<id>_mask.png`, `<id>_coord.png`, `<id>_meta.txt`.
+//! `<id>_color.png`, `<id>_depth.png` (CAMERA: `<id>_composed.png`, in the scene folder
+//! or in `camera_full_depths/<split>/<scene>/` as SPD and AG-Pose keep it; 32001 = no
+//! depth), `<id>_mask.png`, `<id>_coord.png`, `<id>_meta.txt` (three words a line in
+//! Real, four in CAMERA: `instance_id class_id synset model_id`).
 //!
 //! The dataset keeps its ground-truth poses in Python pickles, which a
 //! Python-free runtime does not read. Poses are instead recovered from the
@@ -25,11 +27,28 @@ pub const MIN_FIT_PIXELS: usize = 16;
 
 const COLOR_SUFFIX: &str = "_color.png";
 
+/// A `_composed.png` pixel without depth (SPD / AG-Pose read it as 0).
+pub const COMPOSED_NO_DEPTH: u16 = 32001;
+
 /// A NOCS dataset scene directory opened for reading.
 pub struct NocsLayout {
     root: PathBuf,
     ids: Vec<String>,
     intrinsics: Intrinsics,
+    /// `ROOT/camera_full_depths/<split>/<scene>` for a scene of `ROOT/CAMERA/<split>/`
+    /// (any case): where SPD / AG-Pose keep CAMERA's composed depth.
+    full_depths: Option<PathBuf>,
+}
+
+/// `ROOT/camera_full_depths/<split>/<scene>` when `scene` is `ROOT/CAMERA/<split>/<scene>`
+/// (or `camera/...`, as DualPoseNet and AG-Pose spell it).
+fn camera_full_depths(scene: &Path) -> Option<PathBuf> {
+    let split = scene.parent()?;
+    let group = split.parent()?;
+    if !group.file_name()?.to_str()?.eq_ignore_ascii_case("camera") {
+        return None;
+    }
+    Some(group.parent()?.join("camera_full_depths").join(split.file_name()?).join(scene.file_name()?))
 }
 
 impl NocsLayout {
@@ -50,21 +69,40 @@ impl NocsLayout {
         Ok(ids)
     }
 
-    /// Opens a scene directory. Without explicit intrinsics, CAMERA25's are used
-    /// when the scene has `_composed.png` depth files, REAL275's otherwise.
+    /// Opens a scene directory. Without explicit intrinsics, CAMERA25's are used for a
+    /// scene of a `CAMERA/<split>/` folder or one with `_composed.png` depth files,
+    /// REAL275's otherwise.
     pub fn open(root: &Path, intrinsics: Option<Intrinsics>) -> Result<NocsLayout> {
         let ids = Self::scan(root)?;
         if ids.is_empty() {
             return Err(Error::parse(root, None, "no *_color.png frames in this NOCS layout directory"));
         }
+        let full_depths = camera_full_depths(root);
         let intrinsics = intrinsics.unwrap_or_else(|| {
-            if root.join(format!("{}_composed.png", ids[0])).exists() {
+            if full_depths.is_some() || root.join(format!("{}_composed.png", ids[0])).exists() {
                 Intrinsics::CAMERA25
             } else {
                 Intrinsics::REAL275
             }
         });
-        Ok(NocsLayout { root: root.to_path_buf(), ids, intrinsics })
+        Ok(NocsLayout { root: root.to_path_buf(), ids, intrinsics, full_depths })
+    }
+
+    /// The frame's depth file: CAMERA's composed depth (the scene folder, then
+    /// `camera_full_depths/`) where there is one, else `_depth.png`. A CAMERA scene's
+    /// `_depth.png` holds the rendered objects only, so there it is never the answer: the
+    /// path returned is the composed file that is missing, and reading it names it.
+    fn depth_path(&self, index: usize) -> PathBuf {
+        let name = format!("{}_composed.png", self.ids[index]);
+        let mut composed = vec![self.root.join(&name)];
+        if let Some(dir) = &self.full_depths {
+            composed.push(dir.join(&name));
+        }
+        if let Some(found) = composed.iter().find(|p| p.exists()) {
+            return found.clone();
+        }
+        let depth = self.path(index, "_depth.png");
+        if self.full_depths.is_some() || !depth.exists() { composed.pop().unwrap_or(depth) } else { depth }
     }
 
     /// Every image of a frame has the intrinsics' size (checked before decoding).
@@ -89,15 +127,25 @@ impl NocsLayout {
     }
 
     fn read_depth(&self, index: usize) -> Result<DepthImage> {
-        let real = self.path(index, "_depth.png");
-        let path = if real.exists() { real } else { self.path(index, "_composed.png") };
+        let path = self.depth_path(index);
+        if !path.exists() && self.full_depths.is_some() {
+            return Err(Error::parse(
+                &path,
+                None,
+                "no such file: a CAMERA frame's depth is its _composed.png (camera_full_depths/ of SPD / AG-Pose; \
+                 _depth.png holds the rendered objects only)",
+            ));
+        }
         let raw = read_png(&path, self.frame_size())?;
         let data = match (raw.color_type, raw.bit_depth) {
             (png::ColorType::Grayscale, png::BitDepth::Sixteen) => raw.samples_u16(),
             // CAMERA25 composed depth: 8-bit, depth = G * 256 + R (file RGB order).
-            (png::ColorType::Rgb, png::BitDepth::Eight) => {
-                raw.data.chunks_exact(3).map(|p| u16::from(p[1]) * 256 + u16::from(p[0])).collect()
-            }
+            (png::ColorType::Rgb, png::BitDepth::Eight) => raw
+                .data
+                .chunks_exact(3)
+                .map(|p| u16::from(p[1]) * 256 + u16::from(p[0]))
+                .map(|d| if d == COMPOSED_NO_DEPTH { 0 } else { d })
+                .collect(),
             _ => {
                 return Err(Error::ImageFormat {
                     path,

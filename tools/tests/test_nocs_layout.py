@@ -218,3 +218,91 @@ def test_mixed_training_on_a_layout_exports_and_replays(recording, layout, trico
     assert len(lines) == len(Recording(recording).frames) and sum(len(ln["instances"]) for ln in lines) > 0
     # the replay evaluated against the layout's own ground truth
     assert (tmp_path / "r.eval.json").exists()
+
+
+@pytest.fixture(scope="module")
+def camera_layout(recording, tmp_path_factory):
+    """The recording declared with CAMERA25's intrinsics (its frames stay SynthNOCS's: what
+    is tested is the layout, not the geometry), written as CAMERA25's val split."""
+    import shutil
+
+    rec = tmp_path_factory.mktemp("camrec") / "rec"
+    shutil.copytree(recording, rec)
+    manifest = json.loads((rec / "manifest.json").read_text())
+    manifest["intrinsics"].update({"fx": 577.5, "fy": 577.5, "cx": 319.5, "cy": 239.5})
+    (rec / "manifest.json").write_text(json.dumps(manifest))
+    root = tmp_path_factory.mktemp("nocs-camera") / "NOCS"
+    split_dir = write_nocs_layout(rec, root, split="camera_val")
+    return rec, root, split_dir
+
+
+def test_a_camera_split_is_written_and_read_as_camera25_is(camera_layout):
+    from PIL import Image
+
+    from tricons_pose.nocs_layout import CAMERA25, SYNSETS
+
+    rec_dir, root, split_dir = camera_layout
+    rec = Recording(rec_dir)
+    assert split_dir == root / "CAMERA" / "val"
+    # ten frames a folder, NNNN names; the composed depth in camera_full_depths/
+    assert sorted(p.relative_to(split_dir).as_posix() for p in split_dir.glob("*/*_color.png")) == \
+        [f"00000/{k:04d}_color.png" for k in range(len(rec))]
+    scene = split_dir / "00000"
+    layout = open_any(split_dir)
+    assert len(layout) == 1 and layout[0].intrinsics == CAMERA25
+    got = layout[0]
+    for k in range(len(rec)):
+        ann = rec.annotations(k)
+        label = rec.mask(k, ann)
+        composed = root / "camera_full_depths" / "val" / "00000" / f"{k:04d}_composed.png"
+        assert got.frames[k].depth == str(composed)
+        # the reader takes the composed depth, which is the recording's whole depth ...
+        np.testing.assert_array_equal(got.depth_m(k), rec.depth_m(k))
+        # ... not _depth.png, which holds the objects only
+        objects_only = np.asarray(Image.open(scene / f"{k:04d}_depth.png")).astype(np.int64)
+        assert not objects_only[label == 0].any() and (objects_only[label > 0] > 0).any()
+        meta = [ln.split() for ln in (scene / f"{k:04d}_meta.txt").read_text().splitlines()]
+        assert [(int(a), int(b), c) for a, b, c, _ in meta] == \
+            [(x.id, x.class_id + 1, SYNSETS[x.cls]) for x in ann.instances]
+        mine = got.annotations(k)
+        assert [x.id for x in mine.instances] == [x.id for x in ann.instances]
+        for a, b in zip(mine.instances, ann.instances):
+            assert a.cls == b.cls
+            np.testing.assert_allclose(a.R, b.R, atol=1e-6)
+            np.testing.assert_allclose(a.t, b.t, atol=1e-6)
+            np.testing.assert_allclose(a.s, b.s, rtol=1e-5)
+        np.testing.assert_array_equal(got.mask(k, mine), label)
+        assert (root / "gts" / "val" / f"results_val_00000_{k:04d}.pkl").exists()
+    # a pixel of 32001 in a composed file is no depth (SPD / AG-Pose), and a CAMERA frame
+    # without its composed file is an error naming it, not a silent read of _depth.png
+    composed = root / "camera_full_depths" / "val" / "00000" / "0000_composed.png"
+    arr = np.asarray(Image.open(composed)).copy()
+    keep = arr.copy()
+    arr[0, 0] = (32001 & 0xFF, 32001 >> 8, 0)
+    Image.fromarray(arr).save(composed)
+    assert got.depth_raw(0)[0, 0] == 0
+    Image.fromarray(keep).save(composed)
+    lonely = root / "lonely" / "CAMERA" / "val" / "00000"
+    lonely.mkdir(parents=True)
+    for p in scene.glob("0000_*"):
+        (lonely / p.name).write_bytes(p.read_bytes())
+    with pytest.raises(RecordingError, match="_composed.png"):
+        NocsLayoutRecording(lonely).depth_raw(0)
+
+
+def test_lowercase_group_folders_are_the_same_split(camera_layout, tmp_path):
+    """DualPoseNet / AG-Pose keep the data as camera/ and real/: the split, its intrinsics
+    and its object models are found the same way."""
+    import shutil
+
+    from tricons_pose.nocs_layout import CAMERA25
+
+    _, root, _ = camera_layout
+    lower = tmp_path / "data"
+    shutil.copytree(root / "CAMERA", lower / "camera")
+    shutil.copytree(root / "camera_full_depths", lower / "camera_full_depths")
+    shutil.copytree(root / "obj_models", lower / "obj_models")
+    a, b = NocsLayoutRecording(root / "CAMERA" / "val" / "00000"), NocsLayoutRecording(lower / "camera" / "val" / "00000")
+    assert b.intrinsics == CAMERA25
+    np.testing.assert_array_equal(a.depth_raw(1), b.depth_raw(1))
+    assert [x.s.tolist() for x in a.annotations(1).instances] == [x.s.tolist() for x in b.annotations(1).instances]

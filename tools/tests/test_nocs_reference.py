@@ -8,7 +8,8 @@ does) and OpenCV is installed (the loader reads every image with ``cv2.imread``)
     pip install opencv-python-headless==4.14.0.94
     NOCS_CVPR2019=PATH/NOCS_CVPR2019 tools/pytest.sh tests/test_nocs_reference.py
 
-What it checks, on the demo recording written as REAL275's test split:
+What it checks, on a SynthNOCS recording written as REAL275's test split (and, for the
+loader, as CAMERA25's val split: ten frames a folder, four-word meta lines, ``bbox.txt``):
 
 * ``NOCSDataset.load_real_scenes``, ``load_image``, ``load_depth`` and ``load_mask`` (with
   ``process_data``) of the checkout's dataset.py find every frame and give back its
@@ -81,7 +82,7 @@ def _nocs_dataset_class():
     path = Path(CHECKOUT) / "dataset.py"
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "NOCSDataset")
-    wanted = ("load_real_scenes", "load_image", "load_depth", "process_data", "load_mask")
+    wanted = ("load_real_scenes", "load_camera_scenes", "load_image", "load_depth", "process_data", "load_mask")
     methods = {n.name: n for n in cls.body if isinstance(n, ast.FunctionDef)}
     missing = [m for m in wanted if m not in methods]
     assert not missing, f"{path}: NOCSDataset lacks {missing}"
@@ -119,6 +120,41 @@ def test_the_nocs_loader_reads_every_frame_as_recorded(recording, layout):
             # 8-bit coordinates: within half a step of the recording's NOCS map
             assert np.abs(coords[:, :, i][inside] - nocs[inside]).max() <= 0.5 / 255 + 1e-6
             assert not coords[:, :, i][~inside].any()
+            s = np.asarray(g.s, dtype=np.float64)
+            np.testing.assert_allclose(scales[i], s / np.linalg.norm(s), rtol=1e-6)
+
+
+def test_the_nocs_loader_reads_a_camera_split_as_recorded(recording, tmp_path):
+    pytest.importorskip("cv2")
+    import shutil
+
+    src = tmp_path / "rec"
+    shutil.copytree(recording, src)
+    manifest = json.loads((src / "manifest.json").read_text())
+    manifest["intrinsics"].update({"fx": 577.5, "fy": 577.5, "cx": 319.5, "cy": 239.5})  # CAMERA25's
+    (src / "manifest.json").write_text(json.dumps(manifest))
+    root = tmp_path / "NOCS"
+    write_nocs_layout(src, root, split="camera_val")
+    rec = Recording(src)
+    ds = _nocs_dataset_class()("val", _Config(root / "obj_models"))
+    ds.load_camera_scenes(str(root / "CAMERA"))
+    assert [Path(i["path"]).relative_to(root / "CAMERA" / "val").as_posix() for i in ds.image_info] == \
+        [f"00000/{k:04d}" for k in range(len(rec))]
+    for k in range(len(rec)):
+        ann = rec.annotations(k)
+        label, nocs = rec.mask(k, ann), rec.nocs(k, ann)
+        np.testing.assert_array_equal(ds.load_image(k), rec.color(k))
+        # CAMERA's _depth.png: the rendered objects only (the whole depth is the composed file)
+        depth_mm = np.clip(np.rint(rec.depth_raw(k).astype(np.float64) * rec.depth_scale_m / 0.001), 0, 65535)
+        np.testing.assert_array_equal(ds.load_depth(k), np.where(label > 0, depth_mm, 0).astype(np.uint16))
+        masks, coords, class_ids, scales, domain = ds.load_mask(k)
+        want = [g for g in ann.instances if (label == g.id).any()]
+        assert class_ids.tolist() == [CLASSES.index(g.cls) + 1 for g in want]
+        for i, g in enumerate(want):
+            inside = label == g.id
+            np.testing.assert_array_equal(masks[:, :, i].astype(bool), inside)
+            assert np.abs(coords[:, :, i][inside] - nocs[inside]).max() <= 0.5 / 255 + 1e-6
+            # CAMERA's scale is bbox.txt's corner difference, not normalised
             s = np.asarray(g.s, dtype=np.float64)
             np.testing.assert_allclose(scales[i], s / np.linalg.norm(s), rtol=1e-6)
 

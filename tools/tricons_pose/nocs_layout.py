@@ -5,7 +5,9 @@ that every path of issue 19 is tested without the real data.
 The layout, as the NOCS authors distribute it and SPD / DualPoseNet / AG-Pose read it::
 
     ROOT/Real/{train,test}/scene_K/NNNN_{color,depth,mask,coord}.png, NNNN_meta.txt
-    ROOT/CAMERA/{train,val}/SSSSS/NNNN_{color,composed,mask,coord}.png, NNNN_meta.txt
+    ROOT/CAMERA/{train,val}/SSSSS/NNNN_{color,depth,mask,coord}.png, NNNN_meta.txt  (ten frames a folder)
+    ROOT/camera_full_depths/{train,val}/SSSSS/NNNN_composed.png  (CAMERA's depth with the real background)
+    ROOT/obj_models/{train,val}/SYNSET/MODEL/bbox.txt  (CAMERA's box corners, NOCS units: NOCS's loader)
     ROOT/Real/train/scene_K/NNNN_label.pkl      (SPD's preprocessing: poses per image)
     ROOT/obj_models/{real_train,real_test,camera_train,camera_val}.pkl  (model points, NOCS space)
     ROOT/obj_models/{real_train,real_test}/MODEL.txt  (the model's box size, NOCS units: NOCS's loader)
@@ -14,10 +16,15 @@ The layout, as the NOCS authors distribute it and SPD / DualPoseNet / AG-Pose re
 
 File conventions (the NOCS repository's ``load_*`` functions): ``_mask.png`` 8-bit
 instance ids, 255 = background; ``_coord.png`` 8-bit RGB, NOCS coordinate + 0.5 with z
-stored flipped (the loader uses ``1 - z``); ``_depth.png`` 16-bit millimetres (CAMERA's
-``_composed.png``: 8-bit RGB, depth = G * 256 + R); ``_meta.txt`` lines
-``instance_id class_id model_name`` (class ids 1..6 = bottle, bowl, camera, can, laptop,
-mug; 0 = distractor). Poses: ``_label.pkl`` holds ``instance_ids``, ``class_ids``,
+stored flipped (the loader uses ``1 - z``); ``_depth.png`` 16-bit millimetres. CAMERA's
+``_depth.png`` holds the rendered objects only; what SPD / AG-Pose train and test on is the
+``_composed.png`` of ``camera_full_depths/`` (the objects over a real background), 8-bit
+RGB with depth = G * 256 + R and 32001 = no depth; it is read from the scene folder or
+that tree, and a CAMERA scene without it is an error. ``_meta.txt`` lines
+``instance_id class_id model_name`` (Real) or ``instance_id class_id synset model_id``
+(CAMERA); class ids 1..6 = bottle, bowl, camera, can, laptop, mug; 0 = distractor. The
+group and split folders may be spelled ``CAMERA``/``Real`` (NOCS, SPD) or
+``camera``/``real`` (DualPoseNet, AG-Pose). Poses: ``_label.pkl`` holds ``instance_ids``, ``class_ids``,
 ``bboxes`` (y1, x1, y2, x2), ``scales`` (the box diagonal, metres), ``rotations``,
 ``translations``, ``model_list``; the box extents in NOCS units come from the object
 model's points (``2 max |p|`` per axis), so size = scale * extents. ``gt_RTs`` are 4x4
@@ -49,6 +56,12 @@ SPLIT_DIRS = {"real_train": ("Real", "train"), "real_test": ("Real", "test"),
               "camera_train": ("CAMERA", "train"), "camera_val": ("CAMERA", "val")}
 """Split name -> directories under the dataset root (the obj_models / gts file names)."""
 SYMMETRIC = ("bottle", "bowl", "can")
+COMPOSED_NO_DEPTH = 32001
+"""The value of a ``_composed.png`` pixel without depth (SPD / AG-Pose map it to 0)."""
+SYNSETS = {"bottle": "02876657", "bowl": "02880940", "camera": "02942699", "can": "02946921",
+           "laptop": "03642806", "mug": "03797390"}
+"""ShapeNet synset of each class: CAMERA's meta lines and object-model folders name it."""
+FRAMES_PER_CAMERA_FOLDER = 10
 
 
 def class_id(name: str) -> int:
@@ -59,6 +72,7 @@ def class_id(name: str) -> int:
 def _save_png(path: Path, array: np.ndarray) -> None:
     from PIL import Image
 
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
     Image.fromarray(array).save(tmp, format="PNG")  # uint16 (H, W) -> 16-bit grayscale
     os.replace(tmp, path)
@@ -87,6 +101,13 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
     and classes are kept (so predictions on the two can be scored against either ground
     truth). Returns the scene directory.
 
+    A CAMERA split is written as CAMERA25 is distributed instead: frame k is
+    ``SSSSS/NNNN`` with ``SSSSS = k // 10`` and ``NNNN = k % 10`` (``scene`` is not used,
+    the split directory is returned), ``_depth.png`` holds the objects' depth only and the
+    whole depth goes to ``camera_full_depths/<split>/SSSSS/NNNN_composed.png``; meta lines
+    name a synset and a model, whose ``obj_models/<split>/SYNSET/MODEL/bbox.txt`` the NOCS
+    loader reads.
+
     The recording's intrinsics must be the split's (REAL275 or CAMERA25: a NOCS layout has
     no intrinsics file); depth is written in millimetres.
     """
@@ -97,8 +118,8 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
     if rec.intrinsics != want:
         raise RecordingError(f"{rec.manifest_path}: intrinsics {rec.intrinsics} are not {split}'s {want}")
     root = Path(root)
-    scene_dir = root.joinpath(*SPLIT_DIRS[split], scene)
-    scene_dir.mkdir(parents=True, exist_ok=True)
+    camera = split.startswith("camera")
+    part = SPLIT_DIRS[split][1]
     models: dict[str, np.ndarray] = {}
     models_path = root / "obj_models" / f"{split}.pkl"
     if models_path.exists():
@@ -108,11 +129,25 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
         ann = rec.annotations(i)
         if ann is None or ann.mask is None or ann.nocs is None:
             raise RecordingError(f"{rec.root}: frame {rec.frames[i].id} has no mask or NOCS map")
-        nid = rec.frames[i].id
+        if camera:
+            scene, nid = f"{i // FRAMES_PER_CAMERA_FOLDER:05d}", f"{i % FRAMES_PER_CAMERA_FOLDER:04d}"
+        else:
+            nid = rec.frames[i].id
+        scene_dir = root.joinpath(*SPLIT_DIRS[split], scene)
+        scene_dir.mkdir(parents=True, exist_ok=True)
         _save_png(scene_dir / f"{nid}_color.png", rec.color(i))
         depth_mm = np.rint(rec.depth_raw(i).astype(np.float64) * rec.depth_scale_m / DEPTH_SCALE_M)
-        _save_png(scene_dir / f"{nid}_depth.png", np.clip(depth_mm, 0, 65535).astype(np.uint16))
+        depth_mm = np.clip(depth_mm, 0, 65535).astype(np.uint16)
         label = rec.mask(i, ann)
+        if camera:
+            if (depth_mm == COMPOSED_NO_DEPTH).any():
+                raise RecordingError(f"{rec.root}: frame {rec.frames[i].id} has a depth of {COMPOSED_NO_DEPTH} mm, "
+                                     "which a composed depth file cannot hold")
+            _save_png(scene_dir / f"{nid}_depth.png", np.where(label > 0, depth_mm, 0).astype(np.uint16))
+            composed = np.stack([depth_mm & 0xFF, depth_mm >> 8, np.zeros_like(depth_mm)], axis=-1).astype(np.uint8)
+            _save_png(root / "camera_full_depths" / part / scene / f"{nid}_composed.png", composed)
+        else:
+            _save_png(scene_dir / f"{nid}_depth.png", depth_mm)
         mask = np.where(label == 0, MASK_BACKGROUND, label).astype(np.uint8)
         _save_png(scene_dir / f"{nid}_mask.png", mask)
         nocs = rec.nocs(i, ann)  # [0, 1], the object's NOCS coordinate + 0.5
@@ -132,12 +167,17 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
             # the model's points: its box corners in NOCS units (2 max |p| = the extents)
             corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
             models[model] = (0.5 * corners * extents).astype(np.float32)
-            if split.startswith("real"):
-                # what the NOCS repository's own loader reads for a scanned model's scale
+            # what the NOCS repository's own loader reads for a model's box
+            if camera:
+                box = root / "obj_models" / part / SYNSETS[inst.cls] / model / "bbox.txt"
+                text = "".join(" ".join(f"{v:.9g}" for v in corner) + "\n" for corner in (extents / 2, -extents / 2))
+                lines.append(f"{inst.id} {class_id(inst.cls)} {SYNSETS[inst.cls]} {model}")
+            else:
                 box = root / "obj_models" / split / f"{model}.txt"
-                box.parent.mkdir(parents=True, exist_ok=True)
-                box.write_text(" ".join(f"{v:.9g}" for v in extents) + "\n", encoding="utf-8")
-            lines.append(f"{inst.id} {class_id(inst.cls)} {model}")
+                text = " ".join(f"{v:.9g}" for v in extents) + "\n"
+                lines.append(f"{inst.id} {class_id(inst.cls)} {model}")
+            box.parent.mkdir(parents=True, exist_ok=True)
+            box.write_text(text, encoding="utf-8")
             label_pkl["instance_ids"].append(inst.id)
             label_pkl["class_ids"].append(class_id(inst.cls))
             label_pkl["bboxes"].append(_bbox(inst_mask))
@@ -164,7 +204,8 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
         }
         _save_pickle(scene_dir / f"{nid}_label.pkl", label_out)
         prefix = f"{SPLIT_DIRS[split][0].lower()}/{SPLIT_DIRS[split][1]}"
-        _save_pickle(root / "gts" / split / f"results_{split}_{scene}_{nid}.pkl", {
+        gt_split = part if camera else split  # gts/val/results_val_00000_0000.pkl, gts/real_test/results_real_test_...
+        _save_pickle(root / "gts" / gt_split / f"results_{gt_split}_{scene}_{nid}.pkl", {
             "image_path": f"data/{prefix}/{scene}/{nid}",
             "gt_class_ids": np.array([g[0] for g in gts], dtype=np.int32),
             "gt_bboxes": np.array([g[1] for g in gts], dtype=np.int32).reshape(n, 4),
@@ -180,7 +221,7 @@ def write_nocs_layout(recording: str | os.PathLike, root: str | os.PathLike, spl
             "pred_bboxes": np.array([s[3] for s in seg], dtype=np.int32).reshape(len(seg), 4),
         })
     _save_pickle(models_path, models)
-    return scene_dir
+    return root.joinpath(*SPLIT_DIRS[split]) if camera else scene_dir
 
 
 @dataclass(frozen=True)
@@ -203,9 +244,9 @@ def scene_dirs(path: str | os.PathLike) -> list[Path]:
 
 def _split_of(scene: Path) -> tuple[Path, str] | None:
     """(dataset root, split name) of a scene directory ``ROOT/Real/train/scene_1``."""
-    group, part = scene.parent.parent.name, scene.parent.name
-    for name, dirs in SPLIT_DIRS.items():
-        if (group, part) == dirs:
+    group, part = scene.parent.parent.name.lower(), scene.parent.name.lower()
+    for name, (g, p) in SPLIT_DIRS.items():
+        if (group, part) == (g.lower(), p.lower()):
             return scene.parent.parent.parent, name
     return None
 
@@ -253,10 +294,26 @@ class NocsLayoutRecording:
             with open(models_path, "rb") as f:
                 self._models = pickle.load(f)
         self.frames: list[FrameEntry] = []
+        camera = split is not None and split[1].startswith("camera")
+        full_depths = split[0] / "camera_full_depths" / self.root.parent.name / self.root.name if camera else None
         for k, fid in enumerate(ids):
-            depth = f"{fid}_depth.png" if (self.root / f"{fid}_depth.png").exists() else f"{fid}_composed.png"
+            depth = self._depth_file(fid, full_depths, camera)
             label = f"{fid}_label.pkl" if (self.root / f"{fid}_label.pkl").exists() else None
             self.frames.append(FrameEntry(fid, k / 30.0, f"{fid}_color.png", depth, label))
+
+    def _depth_file(self, fid: str, full_depths: Path | None, camera: bool) -> str:
+        """The frame's depth file: CAMERA's composed depth (scene folder, then
+        ``camera_full_depths/``), else ``_depth.png``. A CAMERA frame without a composed
+        file names ``_composed.png`` (the error comes when its depth is read)."""
+        composed = [self.root / f"{fid}_composed.png"]
+        if full_depths is not None:
+            composed.append(full_depths / f"{fid}_composed.png")
+        for p in composed:
+            if p.exists():
+                return str(p)
+        if camera or not (self.root / f"{fid}_depth.png").exists():
+            return str(composed[-1])
+        return f"{fid}_depth.png"
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -270,6 +327,9 @@ class NocsLayoutRecording:
 
     def _image(self, name: str, what: str):
         p = self.root / name
+        if not p.exists() and name.endswith("_composed.png"):
+            raise RecordingError(f"{p}: no such file: a CAMERA frame's depth is its _composed.png (camera_full_depths/ "
+                                 "of SPD / AG-Pose; _depth.png holds the rendered objects only)")
         img = read_png(p)
         if (img.width, img.height) != self.size:
             raise RecordingError(f"{p}: {what} is {img.width}x{img.height}, the layout's frames {self.size}")
@@ -287,7 +347,8 @@ class NocsLayoutRecording:
         if img.color == "gray" and img.bit_depth == 16:
             return arr
         if img.color == "rgb" and img.bit_depth == 8:  # CAMERA25 composed depth
-            return (arr[..., 1].astype(np.uint16) * 256 + arr[..., 0]).astype(np.uint16)
+            depth = arr[..., 1].astype(np.uint16) * 256 + arr[..., 0]
+            return np.where(depth == COMPOSED_NO_DEPTH, 0, depth).astype(np.uint16)
         raise RecordingError(f"{self.root / name}: expected 16-bit depth (or 8-bit RGB composed), found "
                              f"{img.color} {img.bit_depth}-bit")
 
@@ -300,7 +361,8 @@ class NocsLayoutRecording:
         if self._split is None:
             return {}
         root, split = self._split
-        p = root / "gts" / split / f"results_{split}_{self.root.name}_{self.frames[i].id}.pkl"
+        gt_split = SPLIT_DIRS[split][1] if split.startswith("camera") else split
+        p = root / "gts" / gt_split / f"results_{gt_split}_{self.root.name}_{self.frames[i].id}.pkl"
         if not p.exists():
             return {}
         with open(p, "rb") as f:
