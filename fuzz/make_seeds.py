@@ -89,6 +89,26 @@ tail_model = helper.make_model(tail, opset_imports=[helper.make_opsetid("", 17)]
 tail_model.ir_version = 8
 put("onnx_graph", "pixel_tail.onnx", tail_model.SerializeToString())
 
+# A resampled map of the form pose::early_gather gathers at its source grid (the paper
+# configuration's image encoder): MatMul(MatMul(rows, low), cols) from 3x3 to 6x6 (two
+# taps per row and column, one dense row), then the same pixel gather.
+resample_nodes = [
+    helper.make_node("MatMul", ["rows", "low"], ["tall"]),
+    helper.make_node("MatMul", ["tall", "cols"], ["feat"]),
+] + tail_nodes[5:]
+rows = [0.75, 0.25, 0, 0.25, 0.75, 0, 0, 0.75, 0.25, 0, 0.25, 0.75, 0.2, 0.3, 0.5, 0, 0, 1.0]
+cols = [1.0, 0.75, 0.25, 0, 0, 0, 0, 0.25, 0.75, 0.75, 0.25, 0, 0, 0, 0, 0.25, 0.75, 1.0]
+resample = helper.make_graph(resample_nodes, "resample_tail", [f("low", [1, 2, 3, 3]), i64("choose", [1, 5])],
+                             [f("picked", [5, 2])], [
+    helper.make_tensor("rows", TensorProto.FLOAT, [6, 3], rows),
+    helper.make_tensor("cols", TensorProto.FLOAT, [3, 6], cols),
+    c("s_bc_hw", [1, 2, 36]), c("s_rows", [-1, 2]), helper.make_tensor("offsets", TensorProto.INT64, [1, 1], [0]),
+    c("s_flat", [-1]),
+])
+resample_model = helper.make_model(resample, opset_imports=[helper.make_opsetid("", 17)])
+resample_model.ir_version = 8
+put("onnx_graph", "resample_tail.onnx", resample_model.SerializeToString())
+
 # ROS 2 bags (MCAP): tiny 4x3 frames on the topics the ros2_bag harness reads, written by
 # the Python mcap-ros2-support writer (uncompressed, zstd, lz4; raw and jpeg colour).
 import io

@@ -902,3 +902,95 @@ fn run_one_node_graph(model: &tract_onnx::pb::ModelProto, x: &[f32], shape: &[us
     assert_eq!(out[0].shape(), out_shape);
     out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec()
 }
+
+/// `LayerNormLastAxis` against the f64 reference within the kernel's derived bound, on
+/// rows of the widths the pose graphs use (and a remainder width), centred and far from
+/// zero (a mean 40x the spread stresses the centring); then a one-node `LayerNormalization`
+/// graph through the pose rewrite against tract's own expansion of it, within the two
+/// kernels' bounds added.
+#[test]
+fn layer_norm_is_within_its_bound_of_the_reference_and_of_tracts_own() {
+    use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, tensor_proto::DataType};
+    use tricons::ops::layer_norm::kernel::{error_bound, layer_norm_reference, layer_norm_rows};
+    use tricons::ops::proto::a_float;
+    let mut rng = Rng::new(23);
+    let mut value = || (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
+    // the bound of every element of (rows, cols) from the exact statistics
+    let bounds = |x: &[f32], cols: usize, scale: &[f32], bias: &[f32], eps: f32| -> Vec<f64> {
+        let mut out = Vec::new();
+        for row in x.chunks_exact(cols) {
+            let mean = row.iter().map(|&v| f64::from(v)).sum::<f64>() / cols as f64;
+            let var = row.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / cols as f64;
+            let sigma = (var + f64::from(eps)).sqrt();
+            let mean_abs = row.iter().map(|&v| f64::from(v).abs()).sum::<f64>() / cols as f64;
+            for c in 0..cols {
+                out.push(error_bound(cols, f64::from(row[c]) - mean, sigma, mean_abs, scale[c], bias[c]));
+            }
+        }
+        out
+    };
+    for (rows, cols, offset, eps) in [(5, 384, 0.0, 1e-6), (7, 128, 3.0, 1e-5), (3, 35, -40.0, 1e-5), (2, 1, 0.5, 1e-5)]
+    {
+        let x: Vec<f32> = (0..rows * cols).map(|_| offset + value()).collect();
+        let scale: Vec<f32> = (0..cols).map(|_| 1.0 + value()).collect();
+        let bias: Vec<f32> = (0..cols).map(|_| value()).collect();
+        let mut got = vec![0f32; rows * cols];
+        layer_norm_rows(&x, rows, cols, &scale, &bias, eps, &mut got).unwrap();
+        let want = layer_norm_reference(&x, cols, &scale, &bias, eps);
+        let bound = bounds(&x, cols, &scale, &bias, eps);
+        for (i, ((g, w), b)) in got.iter().zip(&want).zip(&bound).enumerate() {
+            // the reference is rounded to f32 once: half an ulp of it on top
+            let slack = b + f64::from(w.abs()) * f64::from(f32::EPSILON) / 2.0;
+            assert!(f64::from((g - w).abs()) <= slack, "cols {cols} offset {offset} [{i}]: {g} vs {w}, bound {slack}");
+        }
+    }
+
+    // one node: (2, 6, 128) with scale and bias, tract's expansion against the rewrite
+    let (b, n, c) = (2usize, 6usize, 128usize);
+    let x: Vec<f32> = (0..b * n * c).map(|_| 0.5 + value()).collect();
+    let scale: Vec<f32> = (0..c).map(|_| 1.0 + value()).collect();
+    let bias: Vec<f32> = (0..c).map(|_| value()).collect();
+    let tensor = |name: &str, v: &[f32]| TensorProto {
+        name: name.into(),
+        dims: vec![v.len() as i64],
+        data_type: DataType::Float as i32,
+        float_data: v.to_vec(),
+        ..Default::default()
+    };
+    let node = NodeProto {
+        name: "ln".into(),
+        op_type: "LayerNormalization".into(),
+        input: vec!["x".into(), "scale".into(), "bias".into()],
+        output: vec!["y".into()],
+        attribute: vec![a_float("epsilon", 1e-5)],
+        ..Default::default()
+    };
+    let model = ModelProto {
+        ir_version: 8,
+        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
+        graph: Some(GraphProto {
+            node: vec![node],
+            initializer: vec![tensor("scale", &scale), tensor("bias", &bias)],
+            input: vec![f32_value_info("x", &[b, n, c])],
+            output: vec![f32_value_info("y", &[b, n, c])],
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let run = |m: &ModelProto| run_one_node_graph(m, &x, &[b, n, c], &[b, n, c]);
+    let tract_own = run(&model);
+    let mut rewritten = model.clone();
+    assert_eq!(tricons::pose::rewrite::replace_layer_norms(&mut rewritten), 1);
+    assert_eq!(rewritten.graph.as_ref().unwrap().node[0].op_type, "LayerNormLastAxis");
+    let ours = run(&rewritten);
+    let want = layer_norm_reference(&x, c, &scale, &bias, 1e-5);
+    let bound = bounds(&x, c, &scale, &bias, 1e-5);
+    for (i, (((o, t), w), bd)) in ours.iter().zip(&tract_own).zip(&want).zip(&bound).enumerate() {
+        let slack = 2.0 * bd + f64::from(w.abs()) * f64::from(f32::EPSILON);
+        assert!(f64::from((o - t).abs()) <= slack, "[{i}]: ours {o}, tract {t}, bound {slack}");
+    }
+    // a node the rewrite does not cover (a second output) is left alone
+    let mut two = model.clone();
+    two.graph.as_mut().unwrap().node[0].output.push("mean".into());
+    assert_eq!(tricons::pose::rewrite::replace_layer_norms(&mut two), 0);
+}

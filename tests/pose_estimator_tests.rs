@@ -283,6 +283,29 @@ fn relative_difference(x: &[f32], y: &[f32]) -> f32 {
     x.iter().zip(y).fold(0f32, |m, (p, q)| m.max((p - q).abs())) / scale
 }
 
+/// `LayerNormalization` -> `LayerNormLastAxis` against the graph as exported, both run by
+/// tract on a batch of fixtures: every output within 1e-5 of its largest magnitude (the
+/// kernel's own rounding bound is checked in ops_kernel_tests).
+#[test]
+fn layer_norm_rewrite_matches_the_unrewritten_graph() {
+    let est = shipped();
+    let plain = est.float_proto().unwrap();
+    let mut fast = plain.clone();
+    let n = tricons::pose::rewrite::replace_layer_norms(&mut fast);
+    let lns = |p: &tract_onnx::pb::ModelProto, t: &str| {
+        p.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == t).count()
+    };
+    assert_eq!(n, lns(&plain, "LayerNormalization"));
+    assert!(n >= 8, "the shipped graph's PIGA and SCKD blocks: {n}");
+    assert_eq!((lns(&fast, "LayerNormalization"), lns(&fast, "LayerNormLastAxis")), (0, n));
+    let out = run_variants(&est, &[&plain, &fast]);
+    assert!(!out[0].is_empty());
+    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
+        let d = relative_difference(x, y);
+        assert!(d <= 1e-5, "output {k}: {d}");
+    }
+}
+
 /// The whole load-time rewrite, with the decoder's per-pixel layers moved behind a
 /// `PixelGather` (`pose::early_gather`), against the graph as exported: every output
 /// within 1e-5 of its largest magnitude; the head, the last decoder convolution, its
@@ -340,6 +363,27 @@ fn batch_norm_folding_matches_the_unfolded_graph() {
     };
     assert_eq!((count(&plain), report.batch_norms, count(&folded)), (24, 24, 0));
     let out = run_variants(&est, &[&plain, &folded]);
+    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
+        let worst = relative_difference(x, y);
+        assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
+    }
+}
+
+/// The PIGA encoders' means moved before their last product (`pose::fold`, what the
+/// estimator loads) against the graph as exported, both run by tract on fixtures: every
+/// output within 1e-5 of its largest magnitude; the two encoders of each PIGA block moved.
+#[test]
+fn moving_means_before_products_matches_the_graph_as_exported() {
+    let est = shipped();
+    let plain = est.float_proto().unwrap();
+    let mut moved = plain.clone();
+    let n = tricons::pose::fold::move_means_before_products(&mut moved);
+    let count = |m: &tract_onnx::pb::ModelProto, t: &str| {
+        m.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == t).count()
+    };
+    assert_eq!(n, 4, "geo_local and geo_global of the shipped graph's two PIGA blocks");
+    assert_eq!(count(&moved, "Squeeze"), count(&plain, "Squeeze") + n);
+    let out = run_variants(&est, &[&plain, &moved]);
     for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
         let worst = relative_difference(x, y);
         assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
@@ -452,4 +496,41 @@ fn early_pixel_gather_on_a_small_decoder_tail() {
     assert!(relative_difference(&a, &b) <= 1e-6, "{a:?} vs {b:?}");
     let err = run(&fast, &[0, 16, 1, 2, 3]).unwrap_err();
     assert!(format!("{err:#}").contains("PixelGather"), "{err:#}");
+}
+
+/// The early pixel gather on a resampled map with no per-pixel layers
+/// (`fuzz/seeds/onnx_graph/resample_tail.onnx`, written by fuzz/make_seeds.py:
+/// `MatMul(MatMul(rows, low), cols)`, 3x3 -> 6x6, then the pixel gather): both products
+/// replaced by one `ResampledPixelGather`, the picked rows equal to the graph's as written
+/// within rounding, and an index outside the 6x6 grid an error naming the op.
+#[test]
+fn early_pixel_gather_on_a_resampled_map() {
+    use tract_onnx::prelude::*;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds/onnx_graph/resample_tail.onnx");
+    let plain = tricons::ops::read_onnx_proto(&std::fs::read(path).unwrap()).unwrap();
+    let mut fast = plain.clone();
+    let report = tricons::pose::rewrite::rewrite(&mut fast);
+    assert_eq!(report.early_gather, 1, "{report:?}");
+    let ops: Vec<&str> = fast.graph.as_ref().unwrap().node.iter().map(|n| n.op_type.as_str()).collect();
+    assert!(!ops.contains(&"MatMul") && ops.contains(&"ResampledPixelGather"), "{ops:?}");
+    let run = |proto: &tract_onnx::pb::ModelProto, choose: &[i64]| {
+        let plan = tricons::ops::onnx_with_custom_ops()
+            .model_for_proto_model(proto)
+            .and_then(|m| m.into_optimized())
+            .and_then(|m| m.into_runnable())
+            .unwrap();
+        let low: Vec<f32> = (0..18).map(|i| (i as f32 * 0.7).sin()).collect();
+        plan.run(tvec![
+            Tensor::from_shape(&[1, 2, 3, 3], &low).unwrap().into_tvalue(),
+            Tensor::from_shape(&[1, 5], choose).unwrap().into_tvalue(),
+        ])
+        .map(|out| out[0].try_as_plain_ram().unwrap().as_slice::<f32>().unwrap().to_vec())
+    };
+    // the dense row (4) and the corners
+    let choose = [0, 35, 4 * 6 + 2, 5, 30];
+    let (a, b) = (run(&plain, &choose).unwrap(), run(&fast, &choose).unwrap());
+    assert_eq!(a.len(), 10);
+    assert!(relative_difference(&a, &b) <= 1e-6, "{a:?} vs {b:?}");
+    let err = run(&fast, &[0, 36, 1, 2, 3]).unwrap_err();
+    assert!(format!("{err:#}").contains("ResampledPixelGather"), "{err:#}");
 }

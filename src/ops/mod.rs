@@ -19,8 +19,9 @@
 //! replacing tract's pairwise one with a grid kernel) and [`scatter_elements`]
 //! (`ScatterElements`, replacing tract's per-element coordinate walk). Two more replace standard nodes
 //! tract runs slowly, put in by the pose loader's rewrite ([`crate::pose::rewrite`]):
-//! [`reduce_max`] (`ReduceMaxAxis` for a single-axis `ReduceMax`) and [`upsample`]
-//! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`). The Mask R-CNN loader's
+//! [`reduce_max`] (`ReduceMaxAxis` for a single-axis `ReduceMax`), [`upsample`]
+//! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`) and [`layer_norm`]
+//! (`LayerNormLastAxis` for a last-axis `LayerNormalization`). The Mask R-CNN loader's
 //! rewrite ([`crate::segment::rewrite`]) puts in [`depthwise`] (`DepthwiseConv2d` for a
 //! `Conv` with one input channel per group) and [`resize`] (`Resize2d` for its linear
 //! half-pixel and nearest asymmetric `Resize`s).
@@ -37,6 +38,7 @@ pub mod depthwise;
 pub mod fps;
 pub mod gather;
 pub mod knn;
+pub mod layer_norm;
 pub mod nms;
 pub mod pixel_gather;
 pub mod profile;
@@ -58,8 +60,9 @@ pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 /// exported graph, the two standard operators implemented here (`RoiAlign`,
 /// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
 /// replacements of the pose rewrite, the two of the Mask R-CNN rewrite, the pose
-/// rewrite's pixel gather and the Mask R-CNN rewrite's row scatter.
-pub const PROFILED_NODE_TYPES: [&str; 18] = [
+/// rewrite's pixel gather, the Mask R-CNN rewrite's row scatter and the pose rewrite's
+/// layer normalisation and resampled pixel gather.
+pub const PROFILED_NODE_TYPES: [&str; 20] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -78,6 +81,8 @@ pub const PROFILED_NODE_TYPES: [&str; 18] = [
     "Resize2d",
     "PixelGather",
     "ScatterRows",
+    "LayerNormLastAxis",
+    "ResampledPixelGather",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -108,6 +113,8 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("Resize2d", resize::onnx::parse);
     reg.insert("PixelGather", pixel_gather::onnx::parse);
     reg.insert("ScatterRows", scatter_elements::onnx::parse_rows);
+    reg.insert("LayerNormLastAxis", layer_norm::onnx::parse);
+    reg.insert("ResampledPixelGather", pixel_gather::onnx::parse_resampled);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

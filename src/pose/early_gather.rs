@@ -22,6 +22,12 @@
 //!   first `Reshape` flattens it keeping (B, C) (shape `(0, 0, -1)`) and the row `Gather`
 //!   becomes an `Identity` (the index arithmetic it read is left to tract's pruning).
 //!
+//! A map with no per-pixel layers before it but made by two constant resampling products,
+//! `MatMul(MatMul(rows, x), cols)` (the paper configuration's image encoder: its 14x14
+//! patch features brought to the 192x192 crop), is gathered from `x` through the
+//! products' weights at the picked pixels (`ResampledPixelGather`) and the two products
+//! are dropped: 2 taps a side instead of a 36 864-pixel map and its transpose.
+//!
 //! The convolutions run as matrix products over other column counts, so results can
 //! differ from the unrewritten graph by rounding (tested on the golden fixtures; int8
 //! 1x1 `QConv`s compute each pixel alone and give the same bits). A graph without that
@@ -91,6 +97,31 @@ fn upsampled_from<'a>(graph: &GraphProto, node: &'a NodeProto) -> Option<&'a str
     let resize = node.op_type == "Resize" && super::rewrite::is_bilinear_upsample2x(graph, node);
     let replaced = node.op_type == "BilinearUpsample2x" && node.domain == DOMAIN;
     if resize || replaced { node.input.first().map(String::as_str) } else { None }
+}
+
+/// A map made by two constant resampling products, `MatMul(MatMul(rows, x), cols)` with
+/// `rows` and `cols` f32 matrices and the inner product read by the outer one only (how
+/// the paper configuration's image encoder brings its patch grid to the crop): the two
+/// nodes, `x`, `rows` and `cols`.
+fn resampled_from<'a>(
+    graph: &'a GraphProto,
+    outer: usize,
+    prod: &HashMap<&str, usize>,
+    cons: &HashMap<&str, Vec<usize>>,
+) -> Option<([usize; 2], [&'a str; 3])> {
+    let matrix =
+        |t: &str| proto::constant(graph, t).is_some_and(|c| c.dims.len() == 2 && proto::tensor_f32(c).is_some());
+    let o = &graph.node[outer];
+    let [t, cols] = o.input.as_slice() else { return None };
+    if o.op_type != "MatMul" || !matrix(cols) {
+        return None;
+    }
+    let inner = *prod.get(t.as_str())?;
+    let i = &graph.node[inner];
+    let [rows, x] = i.input.as_slice() else { return None };
+    let read_once = cons.get(t.as_str()).is_some_and(|c| c == &[outer]);
+    (i.op_type == "MatMul" && matrix(rows) && read_once && !graph.output.iter().any(|g| &g.name == t))
+        .then_some(([inner, outer], [x.as_str(), rows.as_str(), cols.as_str()]))
 }
 
 /// The matched tail: the dense map `F`, its `Reshape` (B, C, H*W), the row `Gather`, the
@@ -170,7 +201,7 @@ fn declared_batch(graph: &GraphProto, name: &str) -> Option<i64> {
 }
 
 /// Apply the rewrite wherever the tail matches; the number of per-pixel nodes moved
-/// behind a `PixelGather`.
+/// behind a `PixelGather`, plus one per resampled map gathered at its source grid.
 pub fn gather_pixels_early(graph: &mut GraphProto) -> usize {
     let mut moved = 0;
     // one tail at a time (each rewrite changes the indices); a rewritten tail ends in an
@@ -195,10 +226,21 @@ fn rewrite_one(graph: &mut GraphProto) -> Option<usize> {
         if outputs.contains(tail.map.as_str()) || !cons.get(tail.map.as_str())?.iter().all(|&i| tail_reader(i)) {
             return None;
         }
-        let (chain, sources) = per_pixel_chain(graph, &tail.map, &prod, &cons, &outputs)?;
-        Some((tail, chain, sources))
+        match per_pixel_chain(graph, &tail.map, &prod, &cons, &outputs) {
+            Some((chain, sources)) => Some((tail, chain, sources)),
+            // no per-pixel layers, but a resampled map: gathered from its source grid
+            None => {
+                resampled_from(graph, *prod.get(tail.map.as_str())?, &prod, &cons)?;
+                let map = tail.map.clone();
+                Some((tail, HashSet::new(), vec![map]))
+            }
+        }
     })?;
-    let first = *chain.iter().min()?;
+    // the gathers go where the chain starts, or where the resampled map was made
+    let first = match chain.iter().min() {
+        Some(&i) => i,
+        None => *prod.get(tail.map.as_str())?,
+    };
     // the gathers of what enters the chain; a Resize read only by the chain is dropped
     let choose = tail.choose.clone();
     let mut inserted = Vec::new();
@@ -206,27 +248,45 @@ fn rewrite_one(graph: &mut GraphProto) -> Option<usize> {
     let mut renamed: HashMap<String, String> = HashMap::new();
     for source in &sources {
         let producer = prod.get(source.as_str()).copied();
-        let read_by_chain_only = cons.get(source.as_str()).is_some_and(|c| c.iter().all(|i| chain.contains(i)));
-        let upsampled =
-            producer.filter(|_| read_by_chain_only).and_then(|p| upsampled_from(graph, &graph.node[p]).map(|x| (p, x)));
-        let (x, up) = match upsampled {
-            Some((p, x)) => {
-                dropped.insert(p);
-                (x.to_string(), 1)
-            }
-            None => (source.clone(), 0),
-        };
-        let out = format!("{source}.pixels");
-        inserted.push(NodeProto {
-            name: format!("{source}.PixelGather"),
-            op_type: "PixelGather".into(),
-            domain: DOMAIN.into(),
-            input: vec![x, choose.clone()],
-            output: vec![out.clone()],
-            attribute: vec![a_int("upsample2x", up)],
-            ..Default::default()
-        });
-        renamed.insert(source.clone(), out);
+        // the map itself (no chain): the gather writes it under its own name, which the
+        // tail and its Shape readers read
+        let is_map = chain.is_empty();
+        let read_by_chain_only =
+            is_map || cons.get(source.as_str()).is_some_and(|c| c.iter().all(|i| chain.contains(i)));
+        let out = if is_map { source.clone() } else { format!("{source}.pixels") };
+        let made = producer.filter(|_| read_by_chain_only);
+        if let Some((nodes, [x, rows, cols])) = made.and_then(|p| resampled_from(graph, p, &prod, &cons)) {
+            dropped.extend(nodes);
+            inserted.push(NodeProto {
+                name: format!("{source}.ResampledPixelGather"),
+                op_type: "ResampledPixelGather".into(),
+                domain: DOMAIN.into(),
+                input: vec![x.to_string(), choose.clone(), rows.to_string(), cols.to_string()],
+                output: vec![out.clone()],
+                ..Default::default()
+            });
+        } else {
+            let upsampled = made.and_then(|p| upsampled_from(graph, &graph.node[p]).map(|x| (p, x)));
+            let (x, up) = match upsampled {
+                Some((p, x)) => {
+                    dropped.insert(p);
+                    (x.to_string(), 1)
+                }
+                None => (source.clone(), 0),
+            };
+            inserted.push(NodeProto {
+                name: format!("{source}.PixelGather"),
+                op_type: "PixelGather".into(),
+                domain: DOMAIN.into(),
+                input: vec![x, choose.clone()],
+                output: vec![out.clone()],
+                attribute: vec![a_int("upsample2x", up)],
+                ..Default::default()
+            });
+        }
+        if !is_map {
+            renamed.insert(source.clone(), out);
+        }
     }
     // chain nodes read the gathered maps
     for &i in &chain {
@@ -255,10 +315,12 @@ fn rewrite_one(graph: &mut GraphProto) -> Option<usize> {
     gather.input.truncate(1);
     gather.attribute.clear();
     // shapes recorded for the crop-sized tensors no longer hold
-    let stale: HashSet<String> =
+    let mut stale: HashSet<String> =
         chain.iter().chain(&tail.nodes).flat_map(|&i| graph.node[i].output.iter().cloned()).collect();
+    stale.insert(tail.map.clone());
     graph.value_info.retain(|v| !stale.contains(&v.name));
-    let moved = chain.len();
+    // the per-pixel nodes moved, and each resampled map's two products replaced by a gather
+    let moved = chain.len() + inserted.iter().filter(|n| n.op_type == "ResampledPixelGather").count();
     let mut nodes: Vec<NodeProto> = Vec::with_capacity(graph.node.len() + inserted.len());
     for (i, node) in std::mem::take(&mut graph.node).into_iter().enumerate() {
         if i == first {

@@ -171,7 +171,7 @@ impl PoseEstimator {
         // every input dimension concrete (one instance)
         check_inputs(&proto, &cfg).map_err(|m| Error::model(&onnx_path, m))?;
         let mut folded = proto.clone();
-        let report = crate::pose::fold::fold_batch_norms(&mut folded);
+        let report = crate::pose::fold::fold(&mut folded);
         let concrete = |proto: &ModelProto| {
             onnx.model_for_proto_model(proto).and_then(|m| concrete_batch1(m, &cfg)).and_then(optimise)
         };
@@ -180,9 +180,10 @@ impl PoseEstimator {
                 log::debug!("{}: {report:?}", onnx_path.display());
                 plan
             }
-            // a folded product whose input is not rank 2 (see pose::fold): the graph as it was
+            // a folded product whose input is not rank 2, or a mean over the contracted axis
+            // (see pose::fold): the graph as it was
             Err(e) if report != crate::pose::fold::FoldReport::default() => {
-                log::warn!("{}: batch normalisation not folded ({e:#})", onnx_path.display());
+                log::warn!("{}: loaded without the folds of pose::fold ({e:#})", onnx_path.display());
                 concrete(&proto).map_err(model_err)?
             }
             Err(e) => return Err(model_err(e)),

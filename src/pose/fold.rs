@@ -1,7 +1,8 @@
-//! Load-time folding of inference-mode `BatchNormalization` into the product before it
-//! (ONNX protobuf, before tract parses it; tract's own passes never do it, its einsum
-//! declutter runs first and keeps the normalisation as a separate per-channel multiply
-//! and add).
+//! Load-time folds on the ONNX protobuf, before tract parses it: algebra tract's own
+//! passes never do.
+//!
+//! **Batch normalisation into the product before it** (tract's einsum declutter runs
+//! first and keeps the normalisation as a separate per-channel multiply and add):
 //!
 //! * `MatMul` (constant rank-2 weight) or `Gemm` (constant `B`, `transA = 0`), with an
 //!   optional constant bias `Add`, then `BatchNormalization` -> one `Gemm` whose weight
@@ -16,18 +17,40 @@
 //! so a node already replaced by an int8 node is not seen again. The folded graph differs
 //! from the unfolded one only by rounding (tested on the golden fixtures: relative error
 //! <= 1e-5).
+//!
+//! **A mean taken before the product it follows** ([`move_means_before_products`]): a
+//! mean over an axis the product does not contract commutes with it,
+//! `mean_a(X W + b) = mean_a(X) W + b`, so the product runs on one row where it ran on
+//! every row of the axis. The PIGA geometric encoders end this way (an MLP over each
+//! keypoint's 28 or 120 triangles, then their mean): their last product shrinks by that
+//! factor. The protobuf does not give ranks, so the moved mean keeps its axis
+//! (`keepdims = 1`) and a `Squeeze` drops it after the bias: had the axis been the
+//! contracted one, the product of a length-1 axis with a weight of `K > 1` rows fails to
+//! type, and the caller loads the graph without the folds (as for a `Gemm` above); a
+//! weight of one row is left alone. Rounding only (tested like the batch normalisation).
+
+use std::collections::HashMap;
 
 use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, TensorProto, tensor_proto};
 
+use crate::ops::proto::{a_ints, attr, attr_i, constant, tensor_i64};
 use crate::quant::rewrite::{Candidate, Constants, batch_norm, bias_vector, candidates, weight_matrix};
 
-/// What [`fold_batch_norms`] folded.
+/// What [`fold`] folded.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FoldReport {
     /// `BatchNormalization` nodes folded into the weights before them.
     pub batch_norms: usize,
     /// Bias `Add` nodes folded with them.
     pub bias_adds: usize,
+    /// `ReduceMean` nodes moved before the product they followed.
+    pub means_moved: usize,
+}
+
+/// Every fold of this module: batch normalisations, then means.
+pub fn fold(model: &mut ModelProto) -> FoldReport {
+    let report = fold_batch_norms(model);
+    FoldReport { means_moved: move_means_before_products(model), ..report }
 }
 
 fn f32_tensor(name: String, dims: &[usize], values: &[f32]) -> TensorProto {
@@ -47,7 +70,7 @@ fn folded_prefix(c: &Candidate) -> Option<&[(String, usize)]> {
 }
 
 /// The replacement node and its two new constants, or `None` to leave the chain alone.
-fn fold(graph: &GraphProto, consts: &Constants, c: &Candidate) -> Option<(NodeProto, [TensorProto; 2])> {
+fn fold_one(graph: &GraphProto, consts: &Constants, c: &Candidate) -> Option<(NodeProto, [TensorProto; 2])> {
     if c.unsupported.is_some() {
         return None;
     }
@@ -108,7 +131,7 @@ pub fn fold_batch_norms(model: &mut ModelProto) -> FoldReport {
     let mut remove = Vec::new();
     let mut initializers = Vec::new();
     for c in &found {
-        let Some((node, tensors)) = fold(graph, &consts, c) else { continue };
+        let Some((node, tensors)) = fold_one(graph, &consts, c) else { continue };
         let chain = folded_prefix(c).unwrap_or_default();
         report.batch_norms += 1;
         report.bias_adds += chain.iter().filter(|(op, _)| op == "Add").count();
@@ -126,6 +149,117 @@ pub fn fold_batch_norms(model: &mut ModelProto) -> FoldReport {
     }
     graph.initializer.extend(initializers);
     report
+}
+
+/// The single axis of a `ReduceMean` (attribute before opset 18, constant input from it).
+fn mean_axis(graph: &GraphProto, node: &NodeProto) -> Option<i64> {
+    let axes = match node.input.get(1).filter(|s| !s.is_empty()) {
+        Some(name) => tensor_i64(constant(graph, name)?)?,
+        None => attr(node, "axes")?.ints.clone(),
+    };
+    match axes[..] {
+        [a] => Some(a),
+        _ => None,
+    }
+}
+
+fn i64_tensor(name: String, values: &[i64]) -> TensorProto {
+    TensorProto {
+        name,
+        dims: vec![values.len() as i64],
+        data_type: tensor_proto::DataType::Int64 as i32,
+        raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        ..Default::default()
+    }
+}
+
+/// `MatMul(X, W) -> Add(b) -> ReduceMean(axis a)` (constant `W` of `K > 1` rows and
+/// bias, each intermediate used once) -> `ReduceMean(X, a, keepdims 1) -> MatMul(W) ->
+/// Add(b) [-> Squeeze(a)]`, in place; returns how many means moved.
+pub fn move_means_before_products(model: &mut ModelProto) -> usize {
+    let opset =
+        model.opset_import.iter().find(|o| o.domain.is_empty() || o.domain == "ai.onnx").map_or(17, |o| o.version);
+    let Some(graph) = model.graph.as_mut() else { return 0 };
+    let mut consumers: HashMap<&str, Vec<usize>> = HashMap::new();
+    for (i, n) in graph.node.iter().enumerate() {
+        for input in n.input.iter().filter(|s| !s.is_empty()) {
+            consumers.entry(input.as_str()).or_default().push(i);
+        }
+    }
+    let is_output = |name: &str| graph.output.iter().any(|o| o.name == name);
+    let consts = Constants::new(graph);
+    // (product, bias add, mean, its axis)
+    let mut found = Vec::new();
+    for c in candidates(graph) {
+        let [(op, add)] = &c.chain[..] else { continue };
+        if c.op != "MatMul" || op != "Add" || c.unsupported.is_some() {
+            continue;
+        }
+        match weight_matrix(&graph.node[c.index], &consts) {
+            Ok(Some(w)) if w.k > 1 && w.kernel_hw.is_none() => {}
+            _ => continue,
+        }
+        // a bias of rank 1 (a higher one could add axes, and move the mean's axis)
+        let node_add = &graph.node[*add];
+        let bias = node_add.input.iter().find(|i| **i != graph.node[c.index].output[0]);
+        if bias.and_then(|b| consts.f32(b)).is_none_or(|(dims, _)| dims.len() != 1) {
+            continue;
+        }
+        let y = node_add.output[0].as_str();
+        let mean = match consumers.get(y).map(Vec::as_slice) {
+            Some(&[m]) if !is_output(y) && graph.node[m].op_type == "ReduceMean" => m,
+            _ => continue,
+        };
+        if let Some(axis) = mean_axis(graph, &graph.node[mean]) {
+            found.push((c.index, *add, mean, axis));
+        }
+    }
+    drop(consts);
+    let mut replace: HashMap<usize, Vec<NodeProto>> = HashMap::new();
+    let mut initializers = Vec::new();
+    for &(product, add, mean, axis) in &found {
+        let (p, a, m) = (&graph.node[product], &graph.node[add], &graph.node[mean]);
+        let out = m.output[0].clone();
+        let keep = attr_i(m, "keepdims", 1) != 0;
+        let mut reduced = m.clone();
+        reduced.name = format!("{}.before_product", m.name);
+        reduced.input[0] = p.input[0].clone();
+        reduced.output = vec![format!("{out}.mean_first")];
+        reduced.attribute.retain(|at| at.name != "keepdims");
+        reduced.attribute.push(crate::ops::proto::a_int("keepdims", 1));
+        let mut product_node = p.clone();
+        product_node.input[0] = reduced.output[0].clone();
+        let mut add_node = a.clone();
+        let mut tail = Vec::new();
+        if keep {
+            add_node.output = vec![out];
+        } else {
+            add_node.output = vec![format!("{out}.kept_axis")];
+            let mut squeeze = NodeProto {
+                name: format!("{}.squeeze", m.name),
+                op_type: "Squeeze".into(),
+                input: vec![add_node.output[0].clone()],
+                output: vec![out.clone()],
+                ..Default::default()
+            };
+            if opset >= 13 {
+                let axes = format!("{out}.squeeze_axes");
+                squeeze.input.push(axes.clone());
+                initializers.push(i64_tensor(axes, &[axis]));
+            } else {
+                squeeze.attribute.push(a_ints("axes", vec![axis]));
+            }
+            tail.push(squeeze);
+        }
+        replace.insert(product, vec![reduced]);
+        replace.insert(add, vec![product_node]);
+        replace.insert(mean, std::iter::once(add_node).chain(tail).collect());
+    }
+    let nodes = std::mem::take(&mut graph.node);
+    graph.node =
+        nodes.into_iter().enumerate().flat_map(|(i, n)| replace.remove(&i).unwrap_or_else(|| vec![n])).collect();
+    graph.initializer.extend(initializers);
+    found.len()
 }
 
 #[cfg(test)]
@@ -235,8 +369,16 @@ mod tests {
 
     #[test]
     fn matmul_bias_and_batch_norm_fold_into_one_gemm() {
-        check(model("MatMul", &[6, 5], 5, true, false), &[7, 6], FoldReport { batch_norms: 1, bias_adds: 1 });
-        check(model("MatMul", &[6, 5], 5, false, false), &[7, 6], FoldReport { batch_norms: 1, bias_adds: 0 });
+        check(
+            model("MatMul", &[6, 5], 5, true, false),
+            &[7, 6],
+            FoldReport { batch_norms: 1, bias_adds: 1, ..Default::default() },
+        );
+        check(
+            model("MatMul", &[6, 5], 5, false, false),
+            &[7, 6],
+            FoldReport { batch_norms: 1, bias_adds: 0, ..Default::default() },
+        );
     }
 
     #[test]
@@ -244,16 +386,20 @@ mod tests {
         let mut m = model("Gemm", &[5, 6], 5, false, true);
         let g = m.graph.as_mut().unwrap();
         g.node[0].attribute.push(crate::ops::proto::a_int("transB", 1));
-        check(m, &[3, 6], FoldReport { batch_norms: 1, bias_adds: 0 });
+        check(m, &[3, 6], FoldReport { batch_norms: 1, bias_adds: 0, ..Default::default() });
     }
 
     #[test]
     fn conv_and_batch_norm_fold_into_the_filters() {
-        check(model("Conv", &[4, 3, 3, 3], 4, false, true), &[1, 3, 6, 5], FoldReport { batch_norms: 1, bias_adds: 0 });
+        check(
+            model("Conv", &[4, 3, 3, 3], 4, false, true),
+            &[1, 3, 6, 5],
+            FoldReport { batch_norms: 1, bias_adds: 0, ..Default::default() },
+        );
         check(
             model("Conv", &[4, 3, 1, 1], 4, false, false),
             &[2, 3, 4, 4],
-            FoldReport { batch_norms: 1, bias_adds: 0 },
+            FoldReport { batch_norms: 1, bias_adds: 0, ..Default::default() },
         );
     }
 
@@ -276,6 +422,69 @@ mod tests {
         g.output.push(ValueInfoProto { name: "Z".into(), ..Default::default() });
         let before = m.clone();
         assert_eq!(fold_batch_norms(&mut m), FoldReport::default());
+        assert_eq!(m, before);
+    }
+
+    /// `X -> MatMul(W [k, n]) -> Add(bias) -> ReduceMean(axis, keepdims) -> Y`, opset 17.
+    fn mean_model(k: usize, n: usize, axis: i64, keepdims: i64) -> ModelProto {
+        let mut m = model("MatMul", &[k, n], n, true, false);
+        let g = m.graph.as_mut().unwrap();
+        g.node.truncate(2);
+        g.initializer.retain(|t| t.name == "W" || t.name == "bias");
+        let mut mean = node("ReduceMean", &["a"], "Y");
+        mean.attribute.push(crate::ops::proto::a_ints("axes", vec![axis]));
+        mean.attribute.push(crate::ops::proto::a_int("keepdims", keepdims));
+        g.node.push(mean);
+        m
+    }
+
+    fn check_mean(mut m: ModelProto, x_dims: &[usize]) {
+        let plain = run(&m, x_dims).unwrap();
+        assert_eq!(move_means_before_products(&mut m), 1);
+        let ops: Vec<&str> = m.graph.as_ref().unwrap().node.iter().map(|n| n.op_type.as_str()).collect();
+        assert_eq!(&ops[..3], ["ReduceMean", "MatMul", "Add"]);
+        let moved = run(&m, x_dims).unwrap();
+        assert_eq!(plain.len(), moved.len());
+        let scale = plain.iter().fold(0f32, |a, v| a.max(v.abs()));
+        assert!(scale > 0.1, "the test graph has non-trivial outputs");
+        for (a, b) in plain.iter().zip(&moved) {
+            assert!((a - b).abs() <= 1e-5 * scale, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn a_mean_after_a_product_moves_before_it() {
+        check_mean(mean_model(4, 6, 2, 0), &[2, 5, 7, 4]);
+        check_mean(mean_model(4, 6, 2, 1), &[2, 5, 7, 4]);
+        check_mean(mean_model(4, 6, -2, 0), &[3, 9, 4]);
+        check_mean(mean_model(4, 6, 0, 0), &[3, 9, 4]);
+    }
+
+    /// A mean over the product's own output axis does not commute with it: once moved it
+    /// must refuse to type (the estimator then loads the graph unfolded), never compute
+    /// something else; a one-row weight, where that test cannot work, is left alone.
+    #[test]
+    fn a_mean_over_the_output_axis_fails_to_type_once_moved() {
+        for axis in [3, -1] {
+            let mut m = mean_model(4, 6, axis, 0);
+            run(&m, &[2, 5, 7, 4]).unwrap();
+            assert_eq!(move_means_before_products(&mut m), 1);
+            assert!(run(&m, &[2, 5, 7, 4]).is_err());
+        }
+        let mut m = mean_model(1, 6, 2, 0);
+        let before = m.clone();
+        assert_eq!(move_means_before_products(&mut m), 0);
+        assert_eq!(m, before);
+    }
+
+    #[test]
+    fn a_mean_whose_sum_is_used_elsewhere_is_left_alone() {
+        let mut m = mean_model(4, 6, 2, 0);
+        let g = m.graph.as_mut().unwrap();
+        g.node.push(node("Relu", &["a"], "Z"));
+        g.output.push(ValueInfoProto { name: "Z".into(), ..Default::default() });
+        let before = m.clone();
+        assert_eq!(move_means_before_products(&mut m), 0);
         assert_eq!(m, before);
     }
 }

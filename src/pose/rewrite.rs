@@ -7,6 +7,10 @@
 //!   no sizes, no antialiasing or `exclude_outside` -> `BilinearUpsample2x`
 //!   ([`crate::ops::upsample`]): the same taps and evaluation order, bit for bit.
 //!
+//! * `LayerNormalization` over the last axis with scale and bias, f32 statistics, one
+//!   output -> `LayerNormLastAxis` ([`crate::ops::layer_norm`]): one pass per row, within
+//!   a derived rounding bound of the expansion tract makes of the standard node.
+//!
 //! * The image decoder's per-pixel layers before the sampling of its map at the object's
 //!   pixels run on those pixels only ([`super::early_gather`], `PixelGather`).
 //!
@@ -14,7 +18,7 @@
 
 use tract_onnx::pb::{GraphProto, ModelProto, NodeProto};
 
-use crate::ops::proto::{self, a_int, attr, attr_i, attr_s};
+use crate::ops::proto::{self, a_float, a_int, attr, attr_i, attr_s};
 
 /// Domain of the replacement nodes.
 const DOMAIN: &str = "ai.tricons";
@@ -28,6 +32,8 @@ pub struct RewriteReport {
     pub upsample: usize,
     /// Per-pixel decoder nodes now run on the sampled pixels ([`super::early_gather`]).
     pub early_gather: usize,
+    /// `LayerNormalization` nodes now `LayerNormLastAxis`.
+    pub layer_norm: usize,
 }
 
 /// An f32 constant (initializer or `Constant` node) by name.
@@ -53,6 +59,28 @@ fn reduce_max(node: &NodeProto) -> Option<NodeProto> {
         input: node.input.clone(),
         output: node.output.clone(),
         attribute: vec![a_int("axis", *axis), a_int("keepdims", attr_i(node, "keepdims", 1))],
+        ..Default::default()
+    })
+}
+
+/// `LayerNormLastAxis` for a `LayerNormalization` over the last axis with scale and bias,
+/// f32 statistics (`stash_type` 1) and no mean / inverse-deviation outputs.
+fn layer_norm(node: &NodeProto) -> Option<NodeProto> {
+    let only_y = node.output.len() == 1 || node.output[1..].iter().all(|o| o.is_empty());
+    if node.op_type != "LayerNormalization" || node.input.len() != 3 || !only_y {
+        return None;
+    }
+    if attr_i(node, "axis", -1) != -1 || attr_i(node, "stash_type", 1) != 1 {
+        return None;
+    }
+    let epsilon = attr(node, "epsilon").map_or(1e-5, |a| a.f);
+    Some(NodeProto {
+        name: node.name.clone(),
+        op_type: "LayerNormLastAxis".into(),
+        domain: DOMAIN.into(),
+        input: node.input.clone(),
+        output: vec![node.output[0].clone()],
+        attribute: vec![a_float("epsilon", epsilon)],
         ..Default::default()
     })
 }
@@ -87,10 +115,11 @@ fn upsample(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
 }
 
 /// Apply the rewrites to `model` in place: the early pixel gather first (it drops the
-/// `Resize` it samples through), then the node replacements.
+/// `Resize` it samples through), then the layer normalisations and the node replacements.
 pub fn rewrite(model: &mut ModelProto) -> RewriteReport {
     let early_gather = model.graph.as_mut().map_or(0, super::early_gather::gather_pixels_early);
-    let report = RewriteReport { early_gather, ..replace_nodes(model) };
+    let layer_norm = replace_layer_norms(model);
+    let report = RewriteReport { early_gather, layer_norm, ..replace_nodes(model) };
     if report != RewriteReport::default() {
         import_domain(model);
     }
@@ -103,8 +132,26 @@ fn import_domain(model: &mut ModelProto) {
     }
 }
 
-/// Only the node-for-node replacements (`ReduceMaxAxis`, `BilinearUpsample2x`): each the
-/// same bits as the node it replaces.
+/// `LayerNormalization` -> `LayerNormLastAxis` where it applies; returns the count. The
+/// results differ from tract's expansion of the standard node by rounding only
+/// ([`crate::ops::layer_norm::kernel::error_bound`]).
+pub fn replace_layer_norms(model: &mut ModelProto) -> usize {
+    let Some(graph) = model.graph.as_mut() else { return 0 };
+    let mut n = 0;
+    for node in graph.node.iter_mut() {
+        if let Some(new) = layer_norm(node) {
+            *node = new;
+            n += 1;
+        }
+    }
+    if n > 0 {
+        import_domain(model);
+    }
+    n
+}
+
+/// Only the node-for-node replacements that keep the bits (`ReduceMaxAxis`,
+/// `BilinearUpsample2x`).
 pub fn replace_nodes(model: &mut ModelProto) -> RewriteReport {
     let mut report = RewriteReport::default();
     let Some(graph) = model.graph.as_mut() else { return report };
