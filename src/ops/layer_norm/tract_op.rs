@@ -20,7 +20,7 @@ impl TractKernel for LayerNormLastAxis {
         }
         let shape = x.shape();
         let cols = *shape.last().ok_or_else(|| format_err!("LayerNormLastAxis: a scalar input"))?;
-        let rows = if cols == 0 { 0 } else { x.len() / cols };
+        let rows = x.len().checked_div(cols).unwrap_or(0);
         let mut out = vec![0f32; x.len()];
         layer_norm_rows(
             x.try_as_plain_ram()?.as_slice::<f32>()?,
