@@ -283,6 +283,16 @@ fn relative_difference(x: &[f32], y: &[f32]) -> f32 {
     x.iter().zip(y).fold(0f32, |m, (p, q)| m.max((p - q).abs())) / scale
 }
 
+/// Both graphs run by tract on fixtures: every output within 1e-5 of its largest magnitude.
+fn assert_outputs_within_1e5(est: &PoseEstimator, a: &tract_onnx::pb::ModelProto, b: &tract_onnx::pb::ModelProto) {
+    let out = run_variants(est, &[a, b]);
+    assert!(!out[0].is_empty());
+    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
+        let worst = relative_difference(x, y);
+        assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
+    }
+}
+
 /// `LayerNormalization` -> `LayerNormLastAxis` against the graph as exported, both run by
 /// tract on a batch of fixtures: every output within 1e-5 of its largest magnitude (the
 /// kernel's own rounding bound is checked in ops_kernel_tests).
@@ -298,12 +308,7 @@ fn layer_norm_rewrite_matches_the_unrewritten_graph() {
     assert_eq!(n, lns(&plain, "LayerNormalization"));
     assert!(n >= 8, "the shipped graph's PIGA and SCKD blocks: {n}");
     assert_eq!((lns(&fast, "LayerNormalization"), lns(&fast, "LayerNormLastAxis")), (0, n));
-    let out = run_variants(&est, &[&plain, &fast]);
-    assert!(!out[0].is_empty());
-    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
-        let d = relative_difference(x, y);
-        assert!(d <= 1e-5, "output {k}: {d}");
-    }
+    assert_outputs_within_1e5(&est, &plain, &fast);
 }
 
 /// The whole load-time rewrite, with the decoder's per-pixel layers moved behind a
@@ -322,11 +327,7 @@ fn early_pixel_gather_matches_the_unrewritten_graph() {
         nodes.iter().filter(|n| n.op_type == "PixelGather").map(|n| n.attribute[0].i).collect::<Vec<_>>();
     assert_eq!(gathers.len(), 2, "the upsampled decoder map and the stem");
     assert!(gathers.contains(&1) && gathers.contains(&0));
-    let out = run_variants(&est, &[&plain, &fast]);
-    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
-        let worst = relative_difference(x, y);
-        assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
-    }
+    assert_outputs_within_1e5(&est, &plain, &fast);
 }
 
 /// The int8 graph (the shipped profile's rewrite) with and without the early pixel
@@ -362,11 +363,7 @@ fn batch_norm_folding_matches_the_unfolded_graph() {
         m.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == "BatchNormalization").count()
     };
     assert_eq!((count(&plain), report.batch_norms, count(&folded)), (24, 24, 0));
-    let out = run_variants(&est, &[&plain, &folded]);
-    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
-        let worst = relative_difference(x, y);
-        assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
-    }
+    assert_outputs_within_1e5(&est, &plain, &folded);
 }
 
 /// The PIGA encoders' means moved before their last product (`pose::fold`, what the
@@ -383,11 +380,7 @@ fn moving_means_before_products_matches_the_graph_as_exported() {
     };
     assert_eq!(n, 4, "geo_local and geo_global of the shipped graph's two PIGA blocks");
     assert_eq!(count(&moved, "Squeeze"), count(&plain, "Squeeze") + n);
-    let out = run_variants(&est, &[&plain, &moved]);
-    for (k, (x, y)) in out[0].iter().zip(&out[1]).enumerate() {
-        let worst = relative_difference(x, y);
-        assert!(worst <= 1e-5, "output {k}: relative difference {worst}");
-    }
+    assert_outputs_within_1e5(&est, &plain, &moved);
 }
 
 /// The angle between two rotations, degrees (well conditioned near zero).
