@@ -6,6 +6,28 @@ use tract_onnx::pb::{
     AttributeProto, GraphProto, NodeProto, TensorProto, ValueInfoProto, attribute_proto, tensor_proto,
 };
 
+/// Indices of the nodes reading each tensor.
+pub fn consumers(graph: &GraphProto) -> std::collections::HashMap<&str, Vec<usize>> {
+    let mut map: std::collections::HashMap<&str, Vec<usize>> = std::collections::HashMap::new();
+    for (i, n) in graph.node.iter().enumerate() {
+        for input in n.input.iter().filter(|s| !s.is_empty()) {
+            map.entry(input.as_str()).or_default().push(i);
+        }
+    }
+    map
+}
+
+/// A rank-1 int64 initializer (little-endian raw data).
+pub fn i64_tensor(name: String, values: &[i64]) -> TensorProto {
+    TensorProto {
+        name,
+        dims: vec![values.len() as i64],
+        data_type: tensor_proto::DataType::Int64 as i32,
+        raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        ..Default::default()
+    }
+}
+
 /// A value's declared dimensions: a number where one is declared, `None` for a symbolic
 /// or missing one; empty when no tensor shape is declared.
 pub fn declared_dims(value: &ValueInfoProto) -> Vec<Option<i64>> {

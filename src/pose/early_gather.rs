@@ -36,23 +36,12 @@
 
 use std::collections::{HashMap, HashSet};
 
-use tract_onnx::pb::{GraphProto, NodeProto, TensorProto, tensor_proto};
+use tract_onnx::pb::{GraphProto, NodeProto};
 
 use crate::ops::proto::{self, a_int, attr, attr_i};
 
 /// Domain of the inserted nodes.
 const DOMAIN: &str = "ai.tricons";
-
-/// Indices of the nodes reading each tensor.
-fn consumers(graph: &GraphProto) -> HashMap<&str, Vec<usize>> {
-    let mut map: HashMap<&str, Vec<usize>> = HashMap::new();
-    for (i, n) in graph.node.iter().enumerate() {
-        for input in n.input.iter().filter(|s| !s.is_empty()) {
-            map.entry(input.as_str()).or_default().push(i);
-        }
-    }
-    map
-}
 
 /// Index of the node writing each tensor.
 fn producers(graph: &GraphProto) -> HashMap<&str, usize> {
@@ -217,7 +206,7 @@ pub fn gather_pixels_early(graph: &mut GraphProto) -> usize {
 
 fn rewrite_one(graph: &mut GraphProto) -> Option<usize> {
     let prod = producers(graph);
-    let cons = consumers(graph);
+    let cons = proto::consumers(graph);
     let outputs: HashSet<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
     let (tail, chain, sources) = (0..graph.node.len()).find_map(|g| {
         let tail = match_tail(graph, g, &prod, &cons)?;
@@ -299,13 +288,7 @@ fn rewrite_one(graph: &mut GraphProto) -> Option<usize> {
     // F is now (B, C, N, 1): its rows are the picked ones, in order; the flattening keeps
     // (B, C) and the row gather becomes an Identity
     let keep_bc = format!("{}.keep_bc_flatten", graph.node[tail.flatten].name);
-    graph.initializer.push(TensorProto {
-        name: keep_bc.clone(),
-        dims: vec![3],
-        data_type: tensor_proto::DataType::Int64 as i32,
-        raw_data: [0i64, 0, -1].iter().flat_map(|v| v.to_le_bytes()).collect(),
-        ..Default::default()
-    });
+    graph.initializer.push(proto::i64_tensor(keep_bc.clone(), &[0, 0, -1]));
     let flatten = &mut graph.node[tail.flatten];
     flatten.input.truncate(1);
     flatten.input.push(keep_bc);

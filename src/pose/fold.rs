@@ -33,7 +33,7 @@ use std::collections::HashMap;
 
 use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, TensorProto, tensor_proto};
 
-use crate::ops::proto::{a_ints, attr, attr_i, constant, tensor_i64};
+use crate::ops::proto::{self, a_ints, attr, attr_i, constant, i64_tensor, tensor_i64};
 use crate::quant::rewrite::{Candidate, Constants, batch_norm, bias_vector, candidates, weight_matrix};
 
 /// What [`fold`] folded.
@@ -163,16 +163,6 @@ fn mean_axis(graph: &GraphProto, node: &NodeProto) -> Option<i64> {
     }
 }
 
-fn i64_tensor(name: String, values: &[i64]) -> TensorProto {
-    TensorProto {
-        name,
-        dims: vec![values.len() as i64],
-        data_type: tensor_proto::DataType::Int64 as i32,
-        raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
-        ..Default::default()
-    }
-}
-
 /// `MatMul(X, W) -> Add(b) -> ReduceMean(axis a)` (constant `W` of `K > 1` rows and
 /// bias, each intermediate used once) -> `ReduceMean(X, a, keepdims 1) -> MatMul(W) ->
 /// Add(b) [-> Squeeze(a)]`, in place; returns how many means moved.
@@ -180,12 +170,7 @@ pub fn move_means_before_products(model: &mut ModelProto) -> usize {
     let opset =
         model.opset_import.iter().find(|o| o.domain.is_empty() || o.domain == "ai.onnx").map_or(17, |o| o.version);
     let Some(graph) = model.graph.as_mut() else { return 0 };
-    let mut consumers: HashMap<&str, Vec<usize>> = HashMap::new();
-    for (i, n) in graph.node.iter().enumerate() {
-        for input in n.input.iter().filter(|s| !s.is_empty()) {
-            consumers.entry(input.as_str()).or_default().push(i);
-        }
-    }
+    let consumers = proto::consumers(graph);
     let is_output = |name: &str| graph.output.iter().any(|o| o.name == name);
     let consts = Constants::new(graph);
     // (product, bias add, mean, its axis)

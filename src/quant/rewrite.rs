@@ -82,12 +82,7 @@ impl<'g> Constants<'g> {
 /// Every `MatMul`, `Gemm` and `Conv` of `graph`, with its fusable followers.
 pub fn candidates(graph: &GraphProto) -> Vec<Candidate> {
     let consts = Constants::new(graph);
-    let mut consumers: HashMap<&str, Vec<usize>> = HashMap::new();
-    for (i, n) in graph.node.iter().enumerate() {
-        for input in n.input.iter().filter(|s| !s.is_empty()) {
-            consumers.entry(input.as_str()).or_default().push(i);
-        }
-    }
+    let consumers = crate::ops::proto::consumers(graph);
     let outputs: Vec<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
     let mut found = Vec::new();
     for (index, node) in graph.node.iter().enumerate() {
