@@ -134,6 +134,7 @@ def _rng(ds: InstanceDataset, i: int, seed: int, sampler: str):
 def write_jsonl(path: str | os.PathLike, frames: list[dict]) -> None:
     """Write predictions atomically (temporary file, then rename)."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
     with open(tmp, "w", encoding="utf-8") as f:
         for frame in frames:

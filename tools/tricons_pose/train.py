@@ -74,7 +74,8 @@ def init_weights(init: dict, cfg: ModelConfig, path) -> dict:
     The checkpoint's configuration must equal ``cfg`` (fields added since it was
     written take their defaults), except that a class-agnostic model may start a
     ``nocs_per_class`` one (whose name and notes may differ): the NOCS head's last layer is repeated once per class,
-    so the new model starts with the old one's outputs for every class."""
+    so the new model starts with the old one's outputs for every class; and a CNN model may
+    start one of another crop size (no weight changes shape)."""
     try:
         old = ModelConfig.from_dict(init.get("config") or {})
     except (TypeError, ValueError) as e:
@@ -88,6 +89,11 @@ def init_weights(init: dict, cfg: ModelConfig, path) -> dict:
         for name in ("weight", "bias"):
             key = f"nocs_head.{last}.{name}"
             state[key] = state[key].repeat(cfg.n_classes, *([1] * (state[key].dim() - 1)))
+        return state
+    # the crop size changes no weight's shape (the image encoder is a fully convolutional
+    # CNN; the ViT's resampling matrices are buffers rebuilt from the crop size)
+    resized = old.replace(crop_size=cfg.crop_size, name=cfg.name, notes=cfg.notes)
+    if old.crop_size != cfg.crop_size and cfg.image_encoder == "cnn" and resized.to_dict() == cfg.to_dict():
         return state
     if old.to_dict() != cfg.to_dict():
         raise SystemExit(f"--init-from: {path} was written with a different model configuration")
