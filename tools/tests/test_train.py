@@ -248,3 +248,20 @@ def test_init_from_grows_a_class_agnostic_nocs_head_into_one_per_class():
         new({k: v for k, v in x.items() if k != "class_id"})
     with pytest.raises(SystemExit, match="more than nocs_per_class"):
         T.init_weights(init, grown_cfg.replace(blocks=1), "ck.pt")
+
+
+def test_init_from_accepts_another_crop_size_for_a_cnn_model_only():
+    """A CNN model's weights do not depend on the crop size: a checkpoint starts a model of
+    another crop with every tensor equal; any other difference is still refused."""
+    from tricons_pose.model import TriConsPose
+
+    small = CFG.replace(name="crop-a")
+    torch.manual_seed(0)
+    init = {"config": small.to_dict(), "model": TriConsPose(small).state_dict()}
+    bigger = small.replace(crop_size=small.crop_size * 2, name="crop-b")
+    new = TriConsPose(bigger)
+    new.load_state_dict(T.init_weights(init, bigger, "ck.pt"))
+    for k, v in new.state_dict().items():
+        assert torch.equal(v, init["model"][k]), k
+    with pytest.raises(SystemExit, match="different model configuration"):
+        T.init_weights(init, bigger.replace(blocks=1), "ck.pt")
