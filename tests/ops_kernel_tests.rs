@@ -994,3 +994,76 @@ fn layer_norm_is_within_its_bound_of_the_reference_and_of_tracts_own() {
     two.graph.as_mut().unwrap().node[0].output.push("mean".into());
     assert_eq!(tricons::pose::rewrite::replace_layer_norms(&mut two), 0);
 }
+
+/// `SoftmaxLastAxis` against the f64 reference within the kernel's derived bound, on rows
+/// of the lengths the pose graphs use (the ViT's 197 tokens, 32 keypoints, 1024 points), a
+/// remainder length and a single value, with spreads from 0.1 to 200 (rows whose smallest
+/// terms underflow); then a one-node `Softmax` graph through the pose rewrite against
+/// tract's own `Softmax`, within our bound twice plus 8 ulps of the value for tract's.
+#[test]
+fn softmax_is_within_its_bound_of_the_reference_and_of_tracts_own() {
+    use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto};
+    use tricons::ops::proto::a_int;
+    use tricons::ops::softmax::kernel::{error_bounds, softmax_reference, softmax_rows};
+    let mut rng = Rng::new(29);
+    let mut value = || (rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
+    let check = |x: &[f32], got: &[f32], cols: usize, extra_ulps: f64, what: &str| {
+        let want = softmax_reference(x, cols);
+        for (r, (row, (g, w))) in x.chunks(cols).zip(got.chunks(cols).zip(want.chunks(cols))).enumerate() {
+            let bound = error_bounds(row);
+            for i in 0..cols {
+                let slack = bound[i] * if extra_ulps > 0.0 { 2.0 } else { 1.0 }
+                    + extra_ulps * w[i] * f64::from(f32::EPSILON) / 2.0;
+                let err = (f64::from(g[i]) - w[i]).abs();
+                assert!(err <= slack, "{what}: cols {cols} row {r} [{i}]: {} vs {}, bound {slack:e}", g[i], w[i]);
+            }
+        }
+    };
+    for (rows, cols, spread) in [(6, 197, 8.0), (4, 32, 0.1), (2, 1024, 30.0), (5, 35, 200.0), (3, 1, 1.0)] {
+        let x: Vec<f32> = (0..rows * cols).map(|_| spread * value()).collect();
+        let mut got = x.clone();
+        softmax_rows(&mut got, cols).unwrap();
+        check(&x, &got, cols, 0.0, "kernel");
+    }
+
+    // one node over (2, 6, 197): tract's Softmax against the rewrite's
+    let shape = [2usize, 6, 197];
+    let x: Vec<f32> = (0..shape.iter().product()).map(|_| 6.0 * value()).collect();
+    let node = NodeProto {
+        name: "sm".into(),
+        op_type: "Softmax".into(),
+        input: vec!["x".into()],
+        output: vec!["y".into()],
+        attribute: vec![a_int("axis", -1)],
+        ..Default::default()
+    };
+    let model = ModelProto {
+        ir_version: 8,
+        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
+        graph: Some(GraphProto {
+            node: vec![node],
+            input: vec![f32_value_info("x", &shape)],
+            output: vec![f32_value_info("y", &shape)],
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let run = |m: &ModelProto| run_one_node_graph(m, &x, &shape, &shape);
+    let tract_own = run(&model);
+    check(&x, &tract_own, 197, 8.0, "tract's own Softmax");
+    let mut rewritten = model.clone();
+    assert_eq!(tricons::pose::rewrite::replace_softmaxes(&mut rewritten), 1);
+    assert_eq!(rewritten.graph.as_ref().unwrap().node[0].op_type, "SoftmaxLastAxis");
+    let ours = run(&rewritten);
+    check(&x, &ours, 197, 0.0, "rewritten");
+    // another axis, or no axis before opset 13 (where the default is 1), is left alone
+    let mut other = model.clone();
+    other.graph.as_mut().unwrap().node[0].attribute = vec![a_int("axis", 1)];
+    assert_eq!(tricons::pose::rewrite::replace_softmaxes(&mut other), 0);
+    let mut old = model.clone();
+    old.graph.as_mut().unwrap().node[0].attribute.clear();
+    old.opset_import[0].version = 12;
+    assert_eq!(tricons::pose::rewrite::replace_softmaxes(&mut old), 0);
+    old.opset_import[0].version = 13;
+    assert_eq!(tricons::pose::rewrite::replace_softmaxes(&mut old), 1);
+}

@@ -311,6 +311,23 @@ fn layer_norm_rewrite_matches_the_unrewritten_graph() {
     assert_outputs_within_1e5(&est, &plain, &fast);
 }
 
+/// `Softmax` -> `SoftmaxLastAxis` against the graph as exported, both run by tract on a
+/// batch of fixtures: every output within 1e-5 of its largest magnitude (the kernel's own
+/// rounding bound is checked in ops_kernel_tests).
+#[test]
+fn softmax_rewrite_matches_the_unrewritten_graph() {
+    let est = shipped();
+    let plain = est.float_proto().unwrap();
+    let mut fast = plain.clone();
+    let n = tricons::pose::rewrite::replace_softmaxes(&mut fast);
+    let count = |p: &tract_onnx::pb::ModelProto, t: &str| {
+        p.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == t).count()
+    };
+    assert_eq!((n, count(&fast, "Softmax")), (8, 1), "the attention softmaxes; the one over axis 2 stays");
+    assert_eq!(count(&fast, "SoftmaxLastAxis"), n);
+    assert_outputs_within_1e5(&est, &plain, &fast);
+}
+
 /// The whole load-time rewrite, with the decoder's per-pixel layers moved behind a
 /// `PixelGather` (`pose::early_gather`), against the graph as exported: every output
 /// within 1e-5 of its largest magnitude; the head, the last decoder convolution, its

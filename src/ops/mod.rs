@@ -20,8 +20,9 @@
 //! (`ScatterElements`, replacing tract's per-element coordinate walk). Two more replace standard nodes
 //! tract runs slowly, put in by the pose loader's rewrite ([`crate::pose::rewrite`]):
 //! [`reduce_max`] (`ReduceMaxAxis` for a single-axis `ReduceMax`), [`upsample`]
-//! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`) and [`layer_norm`]
-//! (`LayerNormLastAxis` for a last-axis `LayerNormalization`). The Mask R-CNN loader's
+//! (`BilinearUpsample2x` for a linear half-pixel x2 `Resize`), [`layer_norm`]
+//! (`LayerNormLastAxis` for a last-axis `LayerNormalization`) and [`softmax`]
+//! (`SoftmaxLastAxis` for a last-axis `Softmax`). The Mask R-CNN loader's
 //! rewrite ([`crate::segment::rewrite`]) puts in [`depthwise`] (`DepthwiseConv2d` for a
 //! `Conv` with one input channel per group) and [`resize`] (`Resize2d` for its linear
 //! half-pixel and nearest asymmetric `Resize`s).
@@ -49,6 +50,7 @@ pub mod reduce_max;
 pub mod resize;
 pub mod roi_align;
 pub mod scatter_elements;
+pub mod softmax;
 pub mod three_nn;
 pub mod tract_glue;
 pub mod triangle;
@@ -61,8 +63,8 @@ pub use knn::{KnnIndex, PointsSoa, knn_brute_force};
 /// `NonMaxSuppression`), the int8 nodes of the quantization rewrite, then the two
 /// replacements of the pose rewrite, the two of the Mask R-CNN rewrite, the pose
 /// rewrite's pixel gather, the Mask R-CNN rewrite's row scatter and the pose rewrite's
-/// layer normalisation and resampled pixel gather.
-pub const PROFILED_NODE_TYPES: [&str; 20] = [
+/// layer normalisation, resampled pixel gather and last-axis softmax.
+pub const PROFILED_NODE_TYPES: [&str; 21] = [
     "FurthestPointSample",
     "GatherPoints",
     "BallQuery",
@@ -83,6 +85,7 @@ pub const PROFILED_NODE_TYPES: [&str; 20] = [
     "ScatterRows",
     "LayerNormLastAxis",
     "ResampledPixelGather",
+    "SoftmaxLastAxis",
 ];
 
 /// ONNX node types of the `ai.tricons` domain, as registered by [`register`].
@@ -115,6 +118,7 @@ pub fn register(onnx: &mut tract_onnx::Onnx) {
     reg.insert("ScatterRows", scatter_elements::onnx::parse_rows);
     reg.insert("LayerNormLastAxis", layer_norm::onnx::parse);
     reg.insert("ResampledPixelGather", pixel_gather::onnx::parse_resampled);
+    reg.insert("SoftmaxLastAxis", softmax::onnx::parse);
 }
 
 /// A tract ONNX loader with the standard operators and the `ai.tricons` ones.

@@ -11,6 +11,10 @@
 //!   output -> `LayerNormLastAxis` ([`crate::ops::layer_norm`]): one pass per row, within
 //!   a derived rounding bound of the expansion tract makes of the standard node.
 //!
+//! * `Softmax` over the last axis (`axis = -1`, or no attribute from opset 13 on) ->
+//!   `SoftmaxLastAxis` ([`crate::ops::softmax`]): a vectorised exponential for every row
+//!   length, within a derived rounding bound of the exact softmax.
+//!
 //! * The image decoder's per-pixel layers before the sampling of its map at the object's
 //!   pixels run on those pixels only ([`super::early_gather`], `PixelGather`).
 //!
@@ -34,6 +38,8 @@ pub struct RewriteReport {
     pub early_gather: usize,
     /// `LayerNormalization` nodes now `LayerNormLastAxis`.
     pub layer_norm: usize,
+    /// `Softmax` nodes now `SoftmaxLastAxis`.
+    pub softmax: usize,
 }
 
 /// An f32 constant (initializer or `Constant` node) by name.
@@ -85,6 +91,27 @@ fn layer_norm(node: &NodeProto) -> Option<NodeProto> {
     })
 }
 
+/// `SoftmaxLastAxis` for a `Softmax` over the last axis: `axis = -1` (the same in every
+/// opset: before 13 the input is flattened to 2-D at the axis, which for the last one is
+/// the last-axis softmax too), or no `axis` from opset 13 on (where -1 is the default).
+fn softmax(node: &NodeProto, opset: i64) -> Option<NodeProto> {
+    if node.op_type != "Softmax" || !node.domain.is_empty() || node.input.len() != 1 || node.output.len() != 1 {
+        return None;
+    }
+    let last = match attr(node, "axis") {
+        Some(a) => a.i == -1,
+        None => opset >= 13,
+    };
+    last.then(|| NodeProto {
+        name: node.name.clone(),
+        op_type: "SoftmaxLastAxis".into(),
+        domain: DOMAIN.into(),
+        input: node.input.clone(),
+        output: node.output.clone(),
+        ..Default::default()
+    })
+}
+
 /// A linear half-pixel `Resize` by constant scales (1, 1, 2, 2), no sizes.
 pub(crate) fn is_bilinear_upsample2x(graph: &GraphProto, node: &NodeProto) -> bool {
     if node.op_type != "Resize" || node.output.len() != 1 {
@@ -119,7 +146,8 @@ fn upsample(graph: &GraphProto, node: &NodeProto) -> Option<NodeProto> {
 pub fn rewrite(model: &mut ModelProto) -> RewriteReport {
     let early_gather = model.graph.as_mut().map_or(0, super::early_gather::gather_pixels_early);
     let layer_norm = replace_layer_norms(model);
-    let report = RewriteReport { early_gather, layer_norm, ..replace_nodes(model) };
+    let softmax = replace_softmaxes(model);
+    let report = RewriteReport { early_gather, layer_norm, softmax, ..replace_nodes(model) };
     if report != RewriteReport::default() {
         import_domain(model);
     }
@@ -140,6 +168,24 @@ pub fn replace_layer_norms(model: &mut ModelProto) -> usize {
     let mut n = 0;
     for node in graph.node.iter_mut() {
         if let Some(new) = layer_norm(node) {
+            *node = new;
+            n += 1;
+        }
+    }
+    if n > 0 {
+        import_domain(model);
+    }
+    n
+}
+
+/// `Softmax` -> `SoftmaxLastAxis` where it applies; returns the count. The results are
+/// within [`crate::ops::softmax::kernel::error_bounds`] of the exact softmax.
+pub fn replace_softmaxes(model: &mut ModelProto) -> usize {
+    let opset = model.opset_import.iter().find(|o| o.domain.is_empty()).map_or(1, |o| o.version);
+    let Some(graph) = model.graph.as_mut() else { return 0 };
+    let mut n = 0;
+    for node in graph.node.iter_mut() {
+        if let Some(new) = softmax(node, opset) {
             *node = new;
             n += 1;
         }

@@ -411,6 +411,10 @@ fn print_node_profile(
         let b = batched.iter().find(|x| &x.0 == name).map(|x| x.2.as_secs_f64() * 1e3).unwrap_or(f64::NAN);
         println!("{name:<28} {:>10.2} {:>14.2}", d.as_secs_f64() * 1e3, b);
     }
+    println!("{:<44} {:>6} {:>10}", "module (batch 1; repeated blocks summed)", "nodes", "ms");
+    for (module, n, d) in by_module(&single_nodes).iter().take(15) {
+        println!("{module:<44} {n:>6} {:>10.2}", d.as_secs_f64() * 1e3);
+    }
     let mut slowest = single_nodes;
     slowest.sort_by_key(|x| std::cmp::Reverse(x.2));
     println!("slowest nodes (batch 1):");
@@ -429,6 +433,35 @@ pub(crate) fn by_operator(nodes: &[(String, String, Duration)]) -> Vec<(String, 
         e.1 += *t;
     }
     let mut v: Vec<_> = per_op.into_iter().map(|(op, (n, t))| (op.to_string(), n, t)).collect();
+    v.sort_by_key(|x| std::cmp::Reverse(x.2));
+    v
+}
+
+/// The module a node belongs to, from its exported name: the path without its last part,
+/// at most five parts deep, with numbered repeats merged (`/model/vit/blocks.3/attn/MatMul`
+/// -> `model/vit/blocks.*/attn`).
+fn module_of(node: &str) -> String {
+    let parts: Vec<&str> = node.trim_start_matches('/').split('/').collect();
+    let keep = &parts[..parts.len().saturating_sub(1).clamp(1, 5)];
+    let merged: Vec<String> = keep
+        .iter()
+        .map(|p| match p.rsplit_once('.') {
+            Some((stem, n)) if !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()) => format!("{stem}.*"),
+            _ => p.to_string(),
+        })
+        .collect();
+    merged.join("/")
+}
+
+/// Node times summed per module (see [`module_of`]), with the node count, largest first.
+fn by_module(nodes: &[(String, String, Duration)]) -> Vec<(String, usize, Duration)> {
+    let mut per: std::collections::BTreeMap<String, (usize, Duration)> = Default::default();
+    for (_, node, t) in nodes {
+        let e = per.entry(module_of(node)).or_default();
+        e.0 += 1;
+        e.1 += *t;
+    }
+    let mut v: Vec<_> = per.into_iter().map(|(m, (n, t))| (m, n, t)).collect();
     v.sort_by_key(|x| std::cmp::Reverse(x.2));
     v
 }
@@ -525,4 +558,21 @@ pub(crate) fn machine() -> String {
         .unwrap_or_else(|| std::env::consts::ARCH.to_string());
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     format!("{cpu}, {cores} cores")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::module_of;
+
+    #[test]
+    fn modules_merge_numbered_repeats_and_drop_the_node_name() {
+        assert_eq!(
+            module_of("/model/image_encoder/vit/blocks.10/mlp/fc1/MatMul"),
+            "model/image_encoder/vit/blocks.*/mlp"
+        );
+        assert_eq!(module_of("/model/piga.4/wk/Add.prefused"), "model/piga.*/wk");
+        assert_eq!(module_of("/model/TriangleDescriptor"), "model");
+        assert_eq!(module_of("output_R"), "output_R");
+        assert_eq!(module_of("/model/sckd/Mul_3.split-over-1.1..197"), "model/sckd");
+    }
 }
