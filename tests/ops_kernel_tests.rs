@@ -681,7 +681,7 @@ fn depthwise_equals_its_reference_bit_for_bit() {
 /// `Conv` that is not depthwise is left alone.
 #[test]
 fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
-    use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, tensor_proto::DataType};
+    use tract_onnx::pb::{ModelProto, NodeProto, TensorProto, tensor_proto::DataType};
     use tricons::ops::conv_geometry::ConvGeometry;
     use tricons::ops::proto::{a_int, a_ints};
     let tensor = |name: &str, dims: &[usize], v: &[f32]| TensorProto {
@@ -719,18 +719,7 @@ fn depthwise_conv_node_is_rewritten_and_agrees_with_tracts_own() {
         };
         let g = ConvGeometry { c_in: c, h, w, kernel: [k, k], strides: [s, s], pads: [p; 4], dilations: [1, 1] };
         let (ho, wo) = g.output_hw().unwrap();
-        let model = ModelProto {
-            ir_version: 8,
-            opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
-            graph: Some(GraphProto {
-                node: vec![node],
-                initializer,
-                input: vec![f32_value_info("x", &[2, c, h, w])],
-                output: vec![f32_value_info("y", &[2, c, ho, wo])],
-                ..Default::default()
-            }),
-            ..Default::default()
-        };
+        let model = one_node_model(node, initializer, &[2, c, h, w], f32_value_info("y", &[2, c, ho, wo]));
         let run = |m: &ModelProto| run_one_node_graph(m, &x, &[2, c, h, w], &[2, c, ho, wo]);
         let tract_own = run(&model);
         let mut rewritten = model.clone();
@@ -798,9 +787,7 @@ fn resize_equals_its_reference_bit_for_bit() {
 /// inputs: `8 * eps * max |x|`); a `Resize` by `scales` is left alone.
 #[test]
 fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
-    use tract_onnx::pb::{
-        GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, ValueInfoProto, tensor_proto::DataType,
-    };
+    use tract_onnx::pb::{ModelProto, NodeProto, TensorProto, ValueInfoProto, tensor_proto::DataType};
     use tricons::ops::proto::a_string;
     let mut rng = Rng::new(21);
     let (n, c, h, w) = (1, 3, 12, 17);
@@ -844,18 +831,8 @@ fn resize_nodes_are_rewritten_and_agree_with_tracts_own() {
             attribute,
             ..Default::default()
         };
-        let model = ModelProto {
-            ir_version: 8,
-            opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
-            graph: Some(GraphProto {
-                node: vec![node],
-                initializer,
-                input: vec![f32_value_info("x", &[n, c, h, w])],
-                output: vec![ValueInfoProto { name: "y".into(), ..Default::default() }],
-                ..Default::default()
-            }),
-            ..Default::default()
-        };
+        let model =
+            one_node_model(node, initializer, &[n, c, h, w], ValueInfoProto { name: "y".into(), ..Default::default() });
         let run = |m: &ModelProto| run_one_node_graph(m, &x, &[n, c, h, w], &[n, c, ho, wo]);
         let tract_own = run(&model);
         let mut rewritten = model.clone();
@@ -894,6 +871,28 @@ fn f32_value_info(name: &str, dims: &[usize]) -> tract_onnx::pb::ValueInfoProto 
 
 /// Plan `model` with this crate's loader, run it on the f32 input `x` of `shape`, check the
 /// output's shape and return its values.
+/// An opset-17 model of one node reading `x` (f32, `shape`) and writing `y` (`output`).
+fn one_node_model(
+    node: tract_onnx::pb::NodeProto,
+    initializer: Vec<tract_onnx::pb::TensorProto>,
+    shape: &[usize],
+    output: tract_onnx::pb::ValueInfoProto,
+) -> tract_onnx::pb::ModelProto {
+    use tract_onnx::pb::{GraphProto, ModelProto, OperatorSetIdProto};
+    ModelProto {
+        ir_version: 8,
+        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
+        graph: Some(GraphProto {
+            node: vec![node],
+            initializer,
+            input: vec![f32_value_info("x", shape)],
+            output: vec![output],
+            ..Default::default()
+        }),
+        ..Default::default()
+    }
+}
+
 fn run_one_node_graph(model: &tract_onnx::pb::ModelProto, x: &[f32], shape: &[usize], out_shape: &[usize]) -> Vec<f32> {
     use tract_onnx::prelude::*;
     let onnx = tricons::ops::onnx_with_custom_ops();
@@ -910,7 +909,7 @@ fn run_one_node_graph(model: &tract_onnx::pb::ModelProto, x: &[f32], shape: &[us
 /// kernels' bounds added.
 #[test]
 fn layer_norm_is_within_its_bound_of_the_reference_and_of_tracts_own() {
-    use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto, tensor_proto::DataType};
+    use tract_onnx::pb::{ModelProto, NodeProto, TensorProto, tensor_proto::DataType};
     use tricons::ops::layer_norm::kernel::{error_bound, layer_norm_reference, layer_norm_rows};
     use tricons::ops::proto::a_float;
     let mut rng = Rng::new(23);
@@ -965,18 +964,12 @@ fn layer_norm_is_within_its_bound_of_the_reference_and_of_tracts_own() {
         attribute: vec![a_float("epsilon", 1e-5)],
         ..Default::default()
     };
-    let model = ModelProto {
-        ir_version: 8,
-        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
-        graph: Some(GraphProto {
-            node: vec![node],
-            initializer: vec![tensor("scale", &scale), tensor("bias", &bias)],
-            input: vec![f32_value_info("x", &[b, n, c])],
-            output: vec![f32_value_info("y", &[b, n, c])],
-            ..Default::default()
-        }),
-        ..Default::default()
-    };
+    let model = one_node_model(
+        node,
+        vec![tensor("scale", &scale), tensor("bias", &bias)],
+        &[b, n, c],
+        f32_value_info("y", &[b, n, c]),
+    );
     let run = |m: &ModelProto| run_one_node_graph(m, &x, &[b, n, c], &[b, n, c]);
     let tract_own = run(&model);
     let mut rewritten = model.clone();
@@ -1002,7 +995,7 @@ fn layer_norm_is_within_its_bound_of_the_reference_and_of_tracts_own() {
 /// tract's own `Softmax`, within our bound twice plus 8 ulps of the value for tract's.
 #[test]
 fn softmax_is_within_its_bound_of_the_reference_and_of_tracts_own() {
-    use tract_onnx::pb::{GraphProto, ModelProto, NodeProto, OperatorSetIdProto};
+    use tract_onnx::pb::{ModelProto, NodeProto};
     use tricons::ops::proto::a_int;
     use tricons::ops::softmax::kernel::{error_bounds, softmax_reference, softmax_rows};
     let mut rng = Rng::new(29);
@@ -1037,17 +1030,7 @@ fn softmax_is_within_its_bound_of_the_reference_and_of_tracts_own() {
         attribute: vec![a_int("axis", -1)],
         ..Default::default()
     };
-    let model = ModelProto {
-        ir_version: 8,
-        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: 17 }],
-        graph: Some(GraphProto {
-            node: vec![node],
-            input: vec![f32_value_info("x", &shape)],
-            output: vec![f32_value_info("y", &shape)],
-            ..Default::default()
-        }),
-        ..Default::default()
-    };
+    let model = one_node_model(node, vec![], &shape, f32_value_info("y", &shape));
     let run = |m: &ModelProto| run_one_node_graph(m, &x, &shape, &shape);
     let tract_own = run(&model);
     check(&x, &tract_own, 197, 8.0, "tract's own Softmax");

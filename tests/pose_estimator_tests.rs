@@ -283,6 +283,11 @@ fn relative_difference(x: &[f32], y: &[f32]) -> f32 {
     x.iter().zip(y).fold(0f32, |m, (p, q)| m.max((p - q).abs())) / scale
 }
 
+/// Nodes of type `op_type` in a model's graph.
+fn count_nodes(model: &tract_onnx::pb::ModelProto, op_type: &str) -> usize {
+    model.graph.as_ref().map_or(0, |g| g.node.iter().filter(|n| n.op_type == op_type).count())
+}
+
 /// Both graphs run by tract on fixtures: every output within 1e-5 of its largest magnitude.
 fn assert_outputs_within_1e5(est: &PoseEstimator, a: &tract_onnx::pb::ModelProto, b: &tract_onnx::pb::ModelProto) {
     let out = run_variants(est, &[a, b]);
@@ -302,12 +307,9 @@ fn layer_norm_rewrite_matches_the_unrewritten_graph() {
     let plain = est.float_proto().unwrap();
     let mut fast = plain.clone();
     let n = tricons::pose::rewrite::replace_layer_norms(&mut fast);
-    let lns = |p: &tract_onnx::pb::ModelProto, t: &str| {
-        p.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == t).count()
-    };
-    assert_eq!(n, lns(&plain, "LayerNormalization"));
+    assert_eq!(n, count_nodes(&plain, "LayerNormalization"));
     assert!(n >= 8, "the shipped graph's PIGA and SCKD blocks: {n}");
-    assert_eq!((lns(&fast, "LayerNormalization"), lns(&fast, "LayerNormLastAxis")), (0, n));
+    assert_eq!((count_nodes(&fast, "LayerNormalization"), count_nodes(&fast, "LayerNormLastAxis")), (0, n));
     assert_outputs_within_1e5(&est, &plain, &fast);
 }
 
@@ -320,11 +322,8 @@ fn softmax_rewrite_matches_the_unrewritten_graph() {
     let plain = est.float_proto().unwrap();
     let mut fast = plain.clone();
     let n = tricons::pose::rewrite::replace_softmaxes(&mut fast);
-    let count = |p: &tract_onnx::pb::ModelProto, t: &str| {
-        p.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == t).count()
-    };
-    assert_eq!((n, count(&fast, "Softmax")), (8, 1), "the attention softmaxes; the one over axis 2 stays");
-    assert_eq!(count(&fast, "SoftmaxLastAxis"), n);
+    assert_eq!((n, count_nodes(&fast, "Softmax")), (8, 1), "the attention softmaxes; the one over axis 2 stays");
+    assert_eq!(count_nodes(&fast, "SoftmaxLastAxis"), n);
     assert_outputs_within_1e5(&est, &plain, &fast);
 }
 
@@ -376,10 +375,8 @@ fn batch_norm_folding_matches_the_unfolded_graph() {
     let plain = est.float_proto().unwrap();
     let mut folded = plain.clone();
     let report = tricons::pose::fold::fold_batch_norms(&mut folded);
-    let count = |m: &tract_onnx::pb::ModelProto| {
-        m.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == "BatchNormalization").count()
-    };
-    assert_eq!((count(&plain), report.batch_norms, count(&folded)), (24, 24, 0));
+    let bns = |m| count_nodes(m, "BatchNormalization");
+    assert_eq!((bns(&plain), report.batch_norms, bns(&folded)), (24, 24, 0));
     assert_outputs_within_1e5(&est, &plain, &folded);
 }
 
@@ -392,11 +389,8 @@ fn moving_means_before_products_matches_the_graph_as_exported() {
     let plain = est.float_proto().unwrap();
     let mut moved = plain.clone();
     let n = tricons::pose::fold::move_means_before_products(&mut moved);
-    let count = |m: &tract_onnx::pb::ModelProto, t: &str| {
-        m.graph.as_ref().unwrap().node.iter().filter(|n| n.op_type == t).count()
-    };
     assert_eq!(n, 4, "geo_local and geo_global of the shipped graph's two PIGA blocks");
-    assert_eq!(count(&moved, "Squeeze"), count(&plain, "Squeeze") + n);
+    assert_eq!(count_nodes(&moved, "Squeeze"), count_nodes(&plain, "Squeeze") + n);
     assert_outputs_within_1e5(&est, &plain, &moved);
 }
 
