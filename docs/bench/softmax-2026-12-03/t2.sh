@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# 2 threads, paper config: this binary then onnxruntime, on both cores while the E6 pose
-# training kept running on core 0 (not paused: the session's time did not allow it), so
-# both runtimes shared core 0 with it.
+# 2 threads, paper config: this binary then onnxruntime, on both cores. First pass while the E6 pose
+# training kept running on core 0 (not paused), so both runtimes shared core 0 with it; second
+# pass (paper-t2.txt after "second") with the training finished and a nice-10 build on core 1.
 set -u
 cd "$(dirname "$0")/../../.."
 out=docs/bench/softmax-2026-12-03
