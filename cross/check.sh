@@ -54,6 +54,22 @@ ISA_INDEPENDENT=(
     raised_score_floor_keeps_exactly_the_detections_above_the_threshold
     rendered_ground_truth_is_self_consistent
     masks_and_annotations_agree_and_handles_can_hide
+    # Each loads and plans the whole shipped pose graph under qemu (~200 s apiece on one
+    # core, 366 s for the determinism test, which estimates a frame twice; timed in
+    # docs/results.md, "CI time"). They check graph rewrites and control logic: on this ISA
+    # every kernel a rewrite brings in is checked against tract's own op and its reference
+    # in ops_kernel_tests, and the fully rewritten graph against PyTorch's outputs in
+    # fixture_inputs_through_the_estimator_match_pytorch, both of which still run here.
+    a_whole_demo_frame_is_estimated_deterministically
+    kernel_rewrite_gives_the_unrewritten_graph_bit_for_bit
+    layer_norm_rewrite_matches_the_unrewritten_graph
+    softmax_rewrite_matches_the_unrewritten_graph
+    early_pixel_gather_matches_the_unrewritten_graph
+    moving_means_before_products_matches_the_graph_as_exported
+    rotation_from_keypoints_follows_the_card_and_matches_pytorch
+    # four Mask R-CNN runs for a thread-sharing property (shipped_segmenter_matches_onnxruntime
+    # checks the segmenter's numerics here)
+    a_shared_segmenter_gives_the_same_detections_on_two_threads
 )
 
 declare -A TRIPLE=([aarch64]=aarch64-unknown-linux-gnu [armv7]=armv7-unknown-linux-gnueabihf)
