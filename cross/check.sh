@@ -56,7 +56,8 @@ ISA_INDEPENDENT=(
     masks_and_annotations_agree_and_handles_can_hide
     # Each loads and plans the whole shipped pose graph under qemu (~200 s apiece on one
     # core, 366 s for the determinism test, which estimates a frame twice; timed in
-    # docs/results.md, "CI time"). They check graph rewrites and control logic: on this ISA
+    # docs/results.md, "Test suite", stops 28 and 29). They check graph rewrites, control
+    # logic and the f64 keypoint fit: on this ISA
     # every kernel a rewrite brings in is checked against tract's own op and its reference
     # in ops_kernel_tests, and the fully rewritten graph against PyTorch's outputs in
     # fixture_inputs_through_the_estimator_match_pytorch, both of which still run here.
