@@ -317,3 +317,102 @@ def test_dataloader_collate_and_split(recording, tmp_path):
     ds2.__dict__.pop("_load_frame")
     for key, v in ds[2].items():
         assert torch.equal(v, ds2[2][key]), key
+
+
+# ------------------------------------------------------------ mask perturbation
+
+
+def test_perturb_mask_exact_cases():
+    m = np.zeros((7, 7), bool)
+    m[3, 3] = True
+    grown = D.perturb_mask(m, 1, 0, 0)
+    assert grown.sum() == 9 and grown[2:5, 2:5].all()
+    assert np.array_equal(D.perturb_mask(grown, -1, 0, 0), m)  # a 3x3 square eroded by 1: its centre
+    assert np.array_equal(D.perturb_mask(m, 0, 0, 0), m)
+    moved = D.perturb_mask(m, 0, 2, -1)
+    assert moved.sum() == 1 and moved[5, 2]
+    assert not D.perturb_mask(m, 0, 4, 0).any()  # shifted off the window
+    # erosion treats the outside as mask: a mask filling the window's left column stays
+    edge = np.zeros((5, 5), bool)
+    edge[:, :2] = True
+    assert np.array_equal(D.perturb_mask(edge, -1, 0, 0)[:, 0], np.ones(5, bool))
+    assert not D.perturb_mask(edge, -1, 0, 0)[:, 1].any()
+    # dilation by 2 of a pixel near the corner is clipped by the window
+    c = np.zeros((5, 5), bool)
+    c[0, 0] = True
+    assert D.perturb_mask(c, 2, 0, 0).sum() == 9
+
+
+def test_perturbation_config_is_checked():
+    with pytest.raises(ValueError, match="mask_perturb"):
+        D.AugmentConfig(mask_perturb=1.5)
+    with pytest.raises(ValueError, match="mask_dilate_px"):
+        D.AugmentConfig(mask_dilate_px=-1)
+    # the mask and depth of the crop window are needed
+    with pytest.raises(ValueError, match="keep_crop"):
+        D.perturbed_pixels(_fake_prepared(50), np.random.default_rng(0), D.AugmentConfig(mask_perturb=0.5))
+
+
+def test_perturbed_samples_lie_in_the_perturbed_mask_with_map_or_pose_nocs(recording):
+    aug = D.AugmentConfig(mask_perturb=1.0, mask_dilate_px=3, mask_erode_px=2, mask_shift_px=2)
+    ds = D.InstanceDataset([recording], n_points=256, crop_size=64, seed=5, augment=aug)
+    rec = ds.recordings[0]
+    k = rec.intrinsics
+    n_off = 0
+    for i in range(len(ds)):
+        s = ds[i]
+        j = int(s["index"])
+        p = ds.prepared(j)
+        ref = ds._anns[(ds.index[j].rec, ds.index[j].frame)][ds.index[j].pos]
+        fi = ds.index[j].frame
+        mask, depth, nocs_map = rec.mask(fi), rec.depth_m(fi), rec.nocs(fi)
+        rmin, rmax, cmin, cmax = p.window
+        assert np.array_equal(p.mask_crop, mask[rmin:rmax, cmin:cmax] == ref.id)
+        # the same draws again: the perturbed mask, then the points sampled from it
+        rng = np.random.default_rng((5, 0, i))
+        u = rng.random()
+        radius = int(rng.integers(-2, 4))
+        dy, dx = (int(v) for v in rng.integers(-2, 3, 2))
+        assert u < 1.0
+        pm = D.perturb_mask(p.mask_crop, radius, dy, dx) & (p.depth_crop > 0)
+        if pm.sum() <= D.MIN_VALID_PIXELS:
+            continue
+        choose_all = np.flatnonzero(pm)
+        idx = D.sample_indices(choose_all.size, 256, rng)
+        ch = choose_all[idx]
+        np.testing.assert_array_equal(s["choose"].numpy(), D.remap_choose(ch, p.side, 64))
+        v, u_ = ch // p.side + rmin, ch % p.side + cmin
+        pts = s["pts"].double().numpy()
+        np.testing.assert_allclose(pts[:, 2], depth[v, u_], rtol=1e-6)
+        np.testing.assert_allclose(pts[:, 0] / pts[:, 2] * k.fx + k.cx, u_, atol=1e-3)
+        on = mask[v, u_] == ref.id
+        n_off += int((~on).sum())
+        got = s["nocs"].double().numpy()
+        # on the instance: the NOCS map; off it: the pose's coordinates R^T (p - t) / |s|
+        np.testing.assert_allclose(got[on] + 0.5, nocs_map[v[on], u_[on]], atol=1e-6)
+        pose = (pts - ref.t) @ ref.R / np.linalg.norm(ref.s)
+        np.testing.assert_allclose(got[~on], pose[~on], atol=1e-5)
+    assert n_off > 0  # some dilated or shifted mask reached off the instance
+
+
+def test_crop_arrays_are_cached_beside_the_instances(recording, tmp_path):
+    cache = tmp_path / "c"
+    plain = D.InstanceDataset([recording], n_points=64, crop_size=32, cache_dir=cache)
+    for i in range(len(plain)):
+        plain.prepared(i)
+    assert list(cache.glob("*.npz")) and not list(cache.glob("*.crop.npz"))
+    aug = D.AugmentConfig(mask_perturb=0.7)
+    # the instance cache exists: the crops are added from the depth and mask images
+    a = D.InstanceDataset([recording], n_points=64, crop_size=32, seed=2, augment=aug, cache_dir=cache)
+    b = D.InstanceDataset([recording], n_points=64, crop_size=32, seed=2, augment=aug)  # no disk cache
+    sa = [a[i] for i in range(len(a))]
+    assert len(list(cache.glob("*.crop.npz"))) == len(list(cache.glob("*.npz"))) // 2
+    for x, y in zip(sa, (b[i] for i in range(len(b)))):
+        for key in x:
+            assert torch.equal(x[key], y[key]), key
+    # and read back from the crop files
+    c = D.InstanceDataset([recording], n_points=64, crop_size=32, seed=2, augment=aug, cache_dir=cache)
+    c.recordings[0].depth_raw = None  # would fail if the frames were decoded again
+    for x, i in zip(sa, range(len(c))):
+        for key, val in c[i].items():
+            assert torch.equal(val, x[key]), key

@@ -265,3 +265,11 @@ def test_init_from_accepts_another_crop_size_for_a_cnn_model_only():
         assert torch.equal(v, init["model"][k]), k
     with pytest.raises(SystemExit, match="different model configuration"):
         T.init_weights(init, bigger.replace(blocks=1), "ck.pt")
+
+
+def test_mask_perturbation_is_an_option_of_the_run(recording, tmp_path):
+    with pytest.raises(SystemExit):
+        _args(recording, tmp_path / "x", "--mask-perturb", "1.5")
+    out = tmp_path / "run"
+    assert _run(_args(recording, out, "--max-steps", "1", "--mask-perturb", "0.5"))["step"] == 1
+    assert json.loads((out / "config.json").read_text())["args"]["mask_perturb"] == 0.5

@@ -88,6 +88,10 @@ class PreparedInstance:
     instance: Instance
     depth_scale_m: float
     intrinsics: Intrinsics
+    # the whole crop window, kept for mask perturbation (``keep_crop``): raw depth
+    # (side, side) uint16 and the instance mask there (side, side) bool
+    depth_crop: np.ndarray | None = None
+    mask_crop: np.ndarray | None = None
 
     @property
     def side(self) -> int:
@@ -106,11 +110,14 @@ def prepare_instance(
     inst: Instance,
     intrinsics: Intrinsics,
     depth_scale_m: float,
+    keep_crop: bool = False,
 ) -> PreparedInstance | None:
     """Crop window and valid pixels of one instance; None if its mask is empty.
 
     ``mask`` is the frame's instance-id image. The bbox is that of the
     instance mask (not of mask AND depth); valid pixels are mask AND depth > 0.
+    ``keep_crop`` also keeps the window's raw depth and instance mask
+    (``depth_crop``, ``mask_crop``: what :func:`perturb_mask` needs).
     """
     h, w = mask.shape
     inst_mask = mask == inst.id
@@ -131,6 +138,8 @@ def prepare_instance(
         instance=inst,
         depth_scale_m=depth_scale_m,
         intrinsics=intrinsics,
+        depth_crop=np.ascontiguousarray(depth_raw[rmin:rmax, cmin:cmax]).astype(np.uint16) if keep_crop else None,
+        mask_crop=np.ascontiguousarray(inst_mask[rmin:rmax, cmin:cmax]) if keep_crop else None,
     )
 
 
@@ -241,10 +250,22 @@ class AugmentConfig:
     contrast: float = 0.2
     saturation: float = 0.2
     hue: float = 0.05
+    # mask perturbation (off at 0): with probability ``mask_perturb`` the instance mask is
+    # dilated (radius > 0) or eroded (< 0) by a radius ~ U{-mask_erode_px..mask_dilate_px}
+    # pixels, then shifted by (dy, dx) ~ U{-mask_shift_px..mask_shift_px}^2, inside the crop
+    # window, before the points are chosen: the loose and offset masks a segmenter gives
+    mask_perturb: float = 0.0
+    mask_dilate_px: int = 4
+    mask_erode_px: int = 2
+    mask_shift_px: int = 2
 
     def __post_init__(self):
         if self.scale_axes not in ("camera", "object"):
             raise ValueError(f"scale_axes must be 'camera' or 'object', got {self.scale_axes!r}")
+        if not 0.0 <= self.mask_perturb <= 1.0:
+            raise ValueError(f"mask_perturb must lie in [0, 1], got {self.mask_perturb}")
+        if min(self.mask_dilate_px, self.mask_erode_px, self.mask_shift_px) < 0:
+            raise ValueError("mask_dilate_px, mask_erode_px and mask_shift_px must be >= 0")
 
 
 def draw_view(rng: np.random.Generator, cfg: AugmentConfig, isotropic: bool = False):
@@ -294,6 +315,65 @@ def color_jitter(rgb: np.ndarray, rng: np.random.Generator, cfg: AugmentConfig) 
     return np.clip(x @ m.T, 0, 255)
 
 
+def _dilate_axis(m: np.ndarray, r: int, axis: int) -> np.ndarray:
+    """OR of ``m`` shifted by -r..r along ``axis`` (outside the array: False)."""
+    n = m.shape[axis]
+    pad = [(r, r) if a == axis else (0, 0) for a in range(m.ndim)]
+    p = np.pad(m, pad)
+    out = np.zeros_like(m)
+    for k in range(2 * r + 1):
+        out |= np.take(p, np.arange(k, k + n), axis=axis)
+    return out
+
+
+def perturb_mask(mask: np.ndarray, radius: int, dy: int, dx: int) -> np.ndarray:
+    """``mask`` (H, W) bool dilated (radius > 0) or eroded (radius < 0) by a
+    (2|radius| + 1)-square, then shifted by (dy, dx) pixels (rows, columns; False enters).
+
+    Dilation treats the outside of the array as background, erosion as mask (so a mask
+    cut by the window is not eroded from the cut).
+    """
+    m = np.asarray(mask, bool)
+    r = abs(int(radius))
+    if radius > 0:
+        m = _dilate_axis(_dilate_axis(m, r, 0), r, 1)
+    elif radius < 0:
+        m = ~_dilate_axis(_dilate_axis(~m, r, 0), r, 1)
+    h, w = m.shape
+    out = np.zeros_like(m)
+    ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
+    xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
+    out[yd, xd] = m[ys, xs]
+    return out
+
+
+def perturbed_pixels(prep: PreparedInstance, rng, cfg: AugmentConfig):
+    """Valid pixels of a perturbed mask; draws 1 uniform and 3 integers whatever it returns.
+
+    Returns None (use the instance's own pixels) when the draw keeps the mask (probability
+    1 - ``mask_perturb``) or the perturbed mask has at most 16 valid pixels; else
+    ``(choose, depth, nocs_pos)``: row-major crop indices of perturbed mask AND depth > 0
+    (ascending), their raw depths, and for each the index of the same pixel in
+    ``prep.choose_all`` (its NOCS map value) or -1 for a pixel off the instance.
+    """
+    u = rng.random()
+    radius = int(rng.integers(-cfg.mask_erode_px, cfg.mask_dilate_px + 1))
+    dy, dx = (int(v) for v in rng.integers(-cfg.mask_shift_px, cfg.mask_shift_px + 1, 2))
+    if prep.mask_crop is None or prep.depth_crop is None:
+        raise ValueError("mask perturbation needs the crop window's depth and mask (prepare_instance(keep_crop=True))")
+    if u >= cfg.mask_perturb:
+        return None
+    valid = perturb_mask(prep.mask_crop, radius, dy, dx) & (prep.depth_crop > 0)
+    choose = np.flatnonzero(valid).astype(np.int64)
+    if choose.size <= MIN_VALID_PIXELS:
+        return None
+    depth = prep.depth_crop.reshape(-1)[choose]
+    k = prep.choose_all.size
+    pos = np.minimum(np.searchsorted(prep.choose_all, choose), max(k - 1, 0))
+    inside = (k > 0) & (prep.choose_all[pos] == choose) if k else np.zeros(choose.size, bool)
+    return choose, depth, np.where(inside, pos, -1)
+
+
 # ---------------------------------------------------------------------- sample
 
 
@@ -306,9 +386,12 @@ def make_sample(
 ) -> dict:
     """The random part of preprocessing: a dict of tensors for one instance.
 
-    RNG draws, in order: point sampling (:func:`sample_indices`); if
-    ``augment``: colour jitter (4 uniforms, when enabled), then per view
-    translation (3), scale (3), angles (3).
+    RNG draws, in order: with ``augment.mask_perturb > 0``, the mask perturbation
+    (:func:`perturbed_pixels`: 1 uniform, 3 integers); point sampling
+    (:func:`sample_indices`); if ``augment``: colour jitter (4 uniforms, when
+    enabled), then per view translation (3), scale (3), angles (3). Points of a
+    perturbed mask off the instance get the pose's NOCS R^T (p - t) / |s| (so the
+    heatmap's keypoint target stays that of the pose), the others the map's.
 
     Keys: ``rgb`` (3, S, S) float32, ``pts`` (N, 3) float32 camera frame,
     ``choose`` (N,) int64 on the S x S grid, ``nocs`` (N, 3) float32 (NOCS
@@ -325,13 +408,27 @@ def make_sample(
     ``aug_gt_s`` (V, 3), ``aug_nocs`` (V, N, 3).
     """
     inst = prep.instance
-    idx = sample_indices(prep.n_valid, n_points, rng)
-    choose = prep.choose_all[idx]
-    pts64 = backproject(choose, prep.depth_all[idx], prep.window, prep.intrinsics, prep.depth_scale_m)
-    if prep.nocs_all is not None:
-        nocs = (prep.nocs_all[idx].astype(np.float64) / 65535.0 - 0.5).astype(np.float32)
+    pert = perturbed_pixels(prep, rng, augment) if augment is not None and augment.mask_perturb > 0 else None
+    if pert is None:
+        idx = sample_indices(prep.n_valid, n_points, rng)
+        choose = prep.choose_all[idx]
+        pts64 = backproject(choose, prep.depth_all[idx], prep.window, prep.intrinsics, prep.depth_scale_m)
+        if prep.nocs_all is not None:
+            nocs = (prep.nocs_all[idx].astype(np.float64) / 65535.0 - 0.5).astype(np.float32)
+        else:
+            nocs = np.zeros((n_points, 3), np.float32)
     else:
-        nocs = np.zeros((n_points, 3), np.float32)
+        p_choose, p_depth, p_pos = pert
+        idx = sample_indices(p_choose.size, n_points, rng)
+        choose = p_choose[idx]
+        pts64 = backproject(choose, p_depth[idx], prep.window, prep.intrinsics, prep.depth_scale_m)
+        # R^T (p - t) / |s| as rows: (p - t) @ R
+        nocs64 = (pts64.astype(np.float64) - inst.t) @ inst.R / np.linalg.norm(inst.s)
+        pos = p_pos[idx]
+        on = pos >= 0
+        if prep.nocs_all is not None and on.any():
+            nocs64[on] = prep.nocs_all[pos[on]].astype(np.float64) / 65535.0 - 0.5
+        nocs = nocs64.astype(np.float32)
     rgb = resize_bilinear(prep.rgb_crop, crop_size)
     if augment is not None and augment.color_jitter:
         rgb = color_jitter(rgb, rng, augment)
@@ -418,6 +515,8 @@ class InstanceDataset(Dataset):
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         self._mem: dict[tuple[int, int], list[PreparedInstance | None]] = {}
         self._anns: dict[tuple[int, int], list[Instance]] = {}
+        # mask perturbation needs each crop window's depth and mask (a second cache file)
+        self.keep_crop = augment is not None and augment.mask_perturb > 0
         self.skipped: set[int] = set()
         self.index: list[InstanceRef] = []
         for ri, rec in enumerate(self.recordings):
@@ -457,18 +556,57 @@ class InstanceDataset(Dataset):
         cpath = self._cache_path(ri, fi)
         if cpath is not None and cpath.exists():
             try:
-                return self._from_npz(cpath, rec, insts)
+                preps = self._from_npz(cpath, rec, insts)
             except Exception:  # corrupt or stale cache entry: rebuild it
-                pass
+                preps = None
+            if preps is not None:
+                if self.keep_crop:
+                    self._add_crops(ri, fi, preps, cpath.with_name(cpath.stem + ".crop.npz"))
+                return preps
         ann = rec.annotations(fi)
         mask = rec.mask(fi, ann)
         depth = rec.depth_raw(fi)
         color = rec.color(fi)
         nocs = rec.nocs_raw(fi, ann)
-        preps = [prepare_instance(color, depth, mask, nocs, inst, rec.intrinsics, rec.depth_scale_m) for inst in insts]
+        preps = [prepare_instance(color, depth, mask, nocs, inst, rec.intrinsics, rec.depth_scale_m, self.keep_crop)
+                 for inst in insts]
         if cpath is not None:
             self._to_npz(cpath, preps)
+            if self.keep_crop:
+                self._save_crops(cpath.with_name(cpath.stem + ".crop.npz"), preps)
         return preps
+
+    def _add_crops(self, ri: int, fi: int, preps: list[PreparedInstance | None], path: Path) -> None:
+        """Fill ``depth_crop`` / ``mask_crop`` of cached instances from ``path``, or from the
+        frame's depth and mask images (then written to ``path``)."""
+        if path.exists():
+            try:
+                with np.load(path) as z:
+                    for k, p in enumerate(preps):
+                        if p is not None:
+                            p.depth_crop, p.mask_crop = z[f"{k}_depthcrop"], z[f"{k}_maskcrop"]
+                return
+            except Exception:  # corrupt or stale: rebuild it
+                pass
+        rec = self.recordings[ri]
+        ann = rec.annotations(fi)
+        mask, depth = rec.mask(fi, ann), rec.depth_raw(fi)
+        insts = self._anns[(ri, fi)]
+        for p, inst in zip(preps, insts):
+            if p is not None:
+                rmin, rmax, cmin, cmax = p.window
+                p.depth_crop = np.ascontiguousarray(depth[rmin:rmax, cmin:cmax]).astype(np.uint16)
+                p.mask_crop = np.ascontiguousarray(mask[rmin:rmax, cmin:cmax] == inst.id)
+        self._save_crops(path, preps)
+
+    @staticmethod
+    def _save_crops(path: Path, preps: list[PreparedInstance | None]) -> None:
+        arrays = {}
+        for k, p in enumerate(preps):
+            if p is not None and p.depth_crop is not None:
+                arrays[f"{k}_depthcrop"] = p.depth_crop
+                arrays[f"{k}_maskcrop"] = p.mask_crop
+        InstanceDataset._write_npz(path, arrays)
 
     @staticmethod
     def _to_npz(path: Path, preps: list[PreparedInstance | None]) -> None:
@@ -482,6 +620,11 @@ class InstanceDataset(Dataset):
             arrays[f"{k}_depth"] = p.depth_all
             if p.nocs_all is not None:
                 arrays[f"{k}_nocs"] = p.nocs_all
+        InstanceDataset._write_npz(path, arrays)
+
+    @staticmethod
+    def _write_npz(path: Path, arrays: dict) -> None:
+        """``np.savez`` to a temporary file, then renamed over ``path``."""
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")
         with open(tmp, "wb") as f:

@@ -196,6 +196,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--grad-clip", type=float, default=0.0, help="clip the gradient norm (0: off)")
     p.add_argument("--cache-dir", default=None, help="keep preprocessed instances here as .npz (optional)")
     p.add_argument("--no-color-jitter", action="store_true")
+    p.add_argument("--mask-perturb", type=float, default=0.0, metavar="P",
+                   help="probability of a dilated / eroded / shifted instance mask per sample (0: off); "
+                        "needs the crop windows' depth and masks, cached beside --cache-dir's files")
     p.add_argument("--init-from", default=None,
                    help="start from these weights (a checkpoint.pt or model.pt of the same configuration) with a "
                         "fresh optimiser and schedule: fine-tuning on new data; ignored with --resume")
@@ -207,6 +210,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.epochs < 1 or args.batch_size < 1:
         p.error("--epochs and --batch-size must be positive")
+    if not 0.0 <= args.mask_perturb <= 1.0:
+        p.error(f"--mask-perturb {args.mask_perturb} must lie in [0, 1]")
     if args.real is None and (args.real_per_batch or args.steps_per_epoch):
         p.error("--real-per-batch and --steps-per-epoch go with --real")
     if args.real is not None:
@@ -293,7 +298,7 @@ def train(
     n_views = 2 if cfg.use_sckd_loss else 1
     # view 0 drives the pose supervision in forward_train and is kept isotropic there
     augment = AugmentConfig(n_views=n_views, isotropic_views=(0,), scale_axes="camera",
-                            color_jitter=not args.no_color_jitter)
+                            color_jitter=not args.no_color_jitter, mask_perturb=args.mask_perturb)
     recs_a = [rec for r in args.data for rec in open_any(r)]
     recs_b = [rec for r in (getattr(args, "real", None) or []) for rec in open_any(r)]
     ds = InstanceDataset(recs_a + recs_b, n_points=cfg.n_points, crop_size=cfg.crop_size, seed=args.seed,

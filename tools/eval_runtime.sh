@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# A pose checkpoint evaluated as the runtime serves it (tools/MODEL.md, "E6, second look"):
+# export with the shipped card's keypoint rotation for bowls, then `tricons replay` on one
+# recording with ground-truth masks and with the shipped Mask R-CNN's, at three point-sampling
+# seeds, one thread; then the mean (lowest-highest) over the seeds, overall and per class.
+#
+# Usage: tools/eval_runtime.sh CHECKPOINT OUT_DIR [RECORDING]   (from the repository root)
+#   CHECKPOINT  model.pt or checkpoint.pt of tricons_pose.train
+#   OUT_DIR     gets tricons-pose.onnx + card, <gt|model>-seed<S>.{jsonl,eval.json,txt}, summary.md
+#   RECORDING   default data/synthnocs-val
+# Environment: TRICONS (default target/release/tricons), SEEDS (default "0 1 2"),
+#   MASKS (default "gt model"), ROTATION_FROM_KEYPOINTS (default bowl, as the shipped card).
+set -euo pipefail
+[ $# -ge 2 ] || { sed -n 2,13p "$0" >&2; exit 2; }
+ckpt=$1 out=$2 rec=${3:-data/synthnocs-val}
+tricons=${TRICONS:-target/release/tricons}
+seeds=${SEEDS:-0 1 2}
+masks=${MASKS:-gt model}
+[ -f "$ckpt" ] || { echo "error: no checkpoint $ckpt" >&2; exit 1; }
+[ -x "$tricons" ] || { echo "error: $tricons not built (cargo build --release)" >&2; exit 1; }
+mkdir -p "$out"
+root=$(pwd)
+out=$(cd "$out" && pwd)
+case $ckpt in /*) ;; *) ckpt=$root/$ckpt ;; esac
+(cd tools && .venv/bin/python -m tricons_pose.export --checkpoint "$ckpt" --out "$out/tricons-pose.onnx" \
+    --rotation-from-keypoints "${ROTATION_FROM_KEYPOINTS:-bowl}" >"$out/export.log" 2>&1) \
+    || { cat "$out/export.log" >&2; echo "error: export of $ckpt failed" >&2; exit 1; }
+for m in $masks; do
+    for s in $seeds; do
+        "$tricons" replay --recording "$rec" --model "$out/tricons-pose.card.json" --masks "$m" --seed "$s" \
+            --threads 1 --out "$out/$m-seed$s.jsonl" >"$out/$m-seed$s.txt" 2>&1 \
+            || { cat "$out/$m-seed$s.txt" >&2; echo "error: replay ($m masks, seed $s) failed" >&2; exit 1; }
+    done
+done
+{
+    echo "# $ckpt on $rec (seeds: $seeds)"
+    for m in $masks; do
+        files=$(for s in $seeds; do printf '%s,' "$out/$m-seed$s.eval.json"; done)
+        echo
+        echo "## $m masks"
+        echo
+        (cd tools && .venv/bin/python -m tricons_pose.report --row "$m masks=$files" \
+            --metrics IoU50,IoU75,5deg2cm,10deg5cm)
+        echo
+        (cd tools && .venv/bin/python -m tricons_pose.report --per-class "$files" \
+            --metrics IoU50,IoU75,5deg2cm,10deg5cm)
+    done
+} >"$out/summary.md"
+cat "$out/summary.md"
