@@ -71,6 +71,9 @@ ISA_INDEPENDENT=(
     # four Mask R-CNN runs for a thread-sharing property (shipped_segmenter_matches_onnxruntime
     # checks the segmenter's numerics here)
     a_shared_segmenter_gives_the_same_detections_on_two_threads
+    # two Mask R-CNN runs to check which masks reach the pose stage (control logic; the
+    # erosion and depth-outlier kernels are the library's unit tests, which run here)
+    the_pose_stage_gets_the_cards_eroded_masks_without_depth_outliers
 )
 
 declare -A TRIPLE=([aarch64]=aarch64-unknown-linux-gnu [armv7]=armv7-unknown-linux-gnueabihf)

@@ -406,6 +406,23 @@ fn every_bad_input_is_a_clean_error_that_loses_nothing() {
         &[],
         &[],
     );
+    for (name, field, value) in [
+        ("erosion.card.json", "pose_mask_erode_px", "99"),
+        ("radius.card.json", "pose_mask_max_radius_m", "{\"cup\": 0.1}"),
+    ] {
+        let card = seg.join(name);
+        let text = fs::read_to_string(repo("models/maskrcnn-light.card.json")).unwrap();
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v[field] = serde_json::from_str(value).unwrap();
+        fs::write(&card, v.to_string()).unwrap();
+        t.case(
+            &format!("segmenter card with a bad {field}"),
+            &["segment", "--model", s(&card), "--out", s(&out), "--limit", "1"],
+            &[name, field],
+            &[],
+            &[],
+        );
+    }
     let seg_graph = t.dir("segmenter-graph").join("bad.onnx");
     fs::write(&seg_graph, b"\x0a\xff\xff\xff\xff\x0f").unwrap();
     t.case(

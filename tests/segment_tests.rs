@@ -446,3 +446,38 @@ fn a_shared_segmenter_gives_the_same_detections_on_two_threads() {
     });
     assert_eq!(together, alone);
 }
+
+/// What the pose stage gets of the shipped segmenter's masks on a demo frame: each mask
+/// eroded by the card's `pose_mask_erode_px`, then without the pixels farther than the
+/// card's radius of its class from the mask's median point; never a pixel the segmenter did
+/// not predict; the card's settings change some mask, and with both turned off the masks
+/// are the segmenter's as predicted.
+#[test]
+fn the_pose_stage_gets_the_cards_eroded_masks_without_depth_outliers() {
+    use tricons::pipeline::stages::detections_from_segmenter;
+    use tricons::segment::{depth_outliers::drop_far_pixels, erode::erode_for_pose};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    let (px, radii) = (seg.card().pose_mask_erode_px, seg.card().pose_mask_max_radius_m.clone());
+    assert!(px > 0 && !radii.is_empty(), "the shipped card erodes and drops depth outliers");
+    let rec = tricons::recording::open_recording(&root.join("tests/data/synthnocs-demo")).unwrap();
+    let frame = rec.read_frame(0).unwrap();
+    let raw: Vec<_> = seg.segment(&frame.color).unwrap().into_iter().filter(|d| d.category.is_some()).collect();
+    let dets = detections_from_segmenter(&seg, &frame).unwrap();
+    assert_eq!(dets.len(), raw.len());
+    assert!(!dets.is_empty());
+    let mut changed = 0;
+    for (d, r) in dets.iter().zip(&raw) {
+        assert_eq!(Some(d.class), r.category);
+        let radius = radii[d.class.name()];
+        let want = drop_far_pixels(erode_for_pose(r.mask.clone(), 640, px), &frame.depth, &frame.intrinsics, radius);
+        assert_eq!(d.mask, want, "{}", d.class);
+        assert!(d.mask.iter().zip(&r.mask).all(|(p, m)| !p || *m), "only predicted pixels");
+        changed += usize::from(d.mask != r.mask);
+    }
+    assert!(changed > 0, "the card's settings change the masks the pose stage gets");
+    seg.set_pose_mask_erode_px(0);
+    seg.clear_pose_mask_max_radius();
+    let plain = detections_from_segmenter(&seg, &frame).unwrap();
+    assert!(plain.iter().zip(&raw).all(|(d, r)| d.mask == r.mask));
+}

@@ -7,7 +7,7 @@
 use crate::capture::SourceFrame;
 use crate::category::Category;
 use crate::error::{Error, Result};
-use crate::frame::ColorImage;
+use crate::frame::RgbdFrame;
 use crate::output::PredInstance;
 use crate::pose::{PoseEstimator, Skipped};
 use crate::recording::FrameAnnotations;
@@ -51,17 +51,20 @@ pub trait Estimate: Send {
     fn estimate(&mut self, frame: &SourceFrame, detections: &[Detection]) -> Result<Vec<PredInstance>>;
 }
 
-/// Detections from a Mask R-CNN: instances of a NOCS category only.
-pub fn detections_from_segmenter(segmenter: &Segmenter, image: &ColorImage) -> Result<Vec<Detection>> {
+/// Detections from a Mask R-CNN on `frame`'s colour image: instances of a NOCS category
+/// only, each mask as the pose stage takes it ([`Segmenter::pose_mask`]: eroded and
+/// without depth outliers when the card says so).
+pub fn detections_from_segmenter(segmenter: &Segmenter, frame: &RgbdFrame) -> Result<Vec<Detection>> {
     Ok(segmenter
-        .segment(image)?
+        .segment(&frame.color)?
         .into_iter()
         .filter_map(|d| {
+            let class = d.category?;
             Some(Detection {
-                class: d.category?,
+                class,
                 score: f64::from(d.score),
                 box2d: Some(d.box_xyxy.map(f64::from)),
-                mask: d.mask,
+                mask: segmenter.pose_mask(d.mask, frame, class),
             })
         })
         .collect())
@@ -69,7 +72,7 @@ pub fn detections_from_segmenter(segmenter: &Segmenter, image: &ColorImage) -> R
 
 impl Segment for Segmenter {
     fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
-        detections_from_segmenter(self, &frame.frame.color)
+        detections_from_segmenter(self, &frame.frame)
     }
     fn duplicates_dropped(&self) -> u64 {
         Segmenter::duplicates_dropped(self)
@@ -80,7 +83,7 @@ impl Segment for Segmenter {
 /// run has its own state, so the workers only share read-only weights.
 impl Segment for std::sync::Arc<Segmenter> {
     fn segment(&mut self, frame: &SourceFrame) -> Result<Vec<Detection>> {
-        detections_from_segmenter(self, &frame.frame.color)
+        detections_from_segmenter(self, &frame.frame)
     }
     fn duplicates_dropped(&self) -> u64 {
         Segmenter::duplicates_dropped(self)

@@ -140,7 +140,12 @@ fn calibrate_pose(
         let masks: Option<Vec<Vec<bool>>> = match rec.read_annotations(i)?.and_then(|a| a.instance_masks()) {
             Some(m) => Some(m),
             None => match &segmenter {
-                Some(seg) => Some(seg.segment(&frame.color)?.into_iter().map(|d| d.mask).collect()),
+                Some(seg) => Some(
+                    crate::pipeline::stages::detections_from_segmenter(seg, &frame)?
+                        .into_iter()
+                        .map(|d| d.mask)
+                        .collect(),
+                ),
                 None => None,
             },
         };

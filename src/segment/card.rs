@@ -19,6 +19,9 @@ pub const SEGMENTER_CARD_VERSION: u32 = 1;
 pub const DEFAULT_SCORE_THRESHOLD: f32 = 0.5;
 /// Mask probability threshold (torchvision's convention).
 pub const DEFAULT_MASK_THRESHOLD: f32 = 0.5;
+/// Largest `pose_mask_erode_px` a card may ask for (a larger one is a typo: it would erase
+/// most objects of a 640 x 480 image).
+pub const MAX_POSE_MASK_ERODE_PX: usize = 16;
 
 /// How the image tensor is built from 8-bit RGB: `((pixel * scale) - mean) / std` per
 /// channel, `(3, H, W)`.
@@ -119,6 +122,16 @@ pub struct SegmenterCard {
     /// ([`super::duplicates`]). Absent (a bare torchvision export): off.
     #[serde(default)]
     pub duplicate_mask_iou: Option<f32>,
+    /// Pixels by which each detection's mask is eroded before the pose stage samples its
+    /// points ([`super::erode`]; segmentation outputs and AP keep the masks as predicted).
+    /// Absent (a bare torchvision export): 0, off.
+    #[serde(default)]
+    pub pose_mask_erode_px: usize,
+    /// NOCS category name -> metres: after the erosion, a detection of that category loses
+    /// the mask pixels whose point lies farther than this from the median point of its
+    /// pixels with depth ([`super::depth_outliers`]). Categories absent: no such step.
+    #[serde(default)]
+    pub pose_mask_max_radius_m: BTreeMap<String, f64>,
     /// Training provenance and measured accuracy (not read by the runtime).
     #[serde(default)]
     pub training: serde_json::Value,
@@ -149,6 +162,8 @@ impl SegmenterCard {
             score_threshold: DEFAULT_SCORE_THRESHOLD,
             mask_threshold: DEFAULT_MASK_THRESHOLD,
             duplicate_mask_iou: None,
+            pose_mask_erode_px: 0,
+            pose_mask_max_radius_m: BTreeMap::new(),
             training: serde_json::Value::Null,
             metrics: serde_json::Value::Null,
         }
@@ -193,7 +208,28 @@ impl SegmenterCard {
         {
             return bad(format!("field `duplicate_mask_iou`: must lie in (0, 1), found {iou}"));
         }
+        if card.pose_mask_erode_px > MAX_POSE_MASK_ERODE_PX {
+            return bad(format!(
+                "field `pose_mask_erode_px`: at most {MAX_POSE_MASK_ERODE_PX} pixels, found {}",
+                card.pose_mask_erode_px
+            ));
+        }
+        for (class, radius_m) in &card.pose_mask_max_radius_m {
+            if class.parse::<Category>().is_err() {
+                return bad(format!("field `pose_mask_max_radius_m`: {class:?} is not a NOCS category"));
+            }
+            if !(radius_m.is_finite() && *radius_m > 0.0) {
+                return bad(format!(
+                    "field `pose_mask_max_radius_m`: the radius of {class:?} must be positive metres, found {radius_m}"
+                ));
+            }
+        }
         Ok(card)
+    }
+
+    /// The depth-outlier radius of `category`'s detections, when the card sets one.
+    pub fn pose_mask_max_radius_m(&self, category: Category) -> Option<f64> {
+        self.pose_mask_max_radius_m.get(category.name()).copied()
     }
 
     /// The class name of model label `label`, when the card maps it.
@@ -246,5 +282,27 @@ mod tests {
         }
         let e = card_with(r#", "duplicate_mask_iou": "high""#).unwrap_err().to_string();
         assert!(e.contains("duplicate_mask_iou"), "{e}");
+    }
+
+    #[test]
+    fn pose_mask_erosion_is_off_unless_set_and_bounded() {
+        assert_eq!(card_with("").unwrap().pose_mask_erode_px, 0);
+        assert_eq!(card_with(r#", "pose_mask_erode_px": 2"#).unwrap().pose_mask_erode_px, 2);
+        for bad in ["17", "-1", "1.5", "\"two\""] {
+            let e = card_with(&format!(r#", "pose_mask_erode_px": {bad}"#)).unwrap_err().to_string();
+            assert!(e.contains("pose_mask_erode_px"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn depth_outlier_radii_are_per_category_and_checked() {
+        let card = card_with(r#", "pose_mask_max_radius_m": {"mug": 0.14, "laptop": 0.38}"#).unwrap();
+        assert_eq!(card.pose_mask_max_radius_m(Category::Mug), Some(0.14));
+        assert_eq!(card.pose_mask_max_radius_m(Category::Bottle), None);
+        assert_eq!(card_with("").unwrap().pose_mask_max_radius_m(Category::Mug), None);
+        for bad in [r#"{"cup": 0.1}"#, r#"{"mug": 0}"#, r#"{"mug": -0.1}"#, r#"{"mug": "far"}"#, "[0.1]"] {
+            let e = card_with(&format!(r#", "pose_mask_max_radius_m": {bad}"#)).unwrap_err().to_string();
+            assert!(e.contains("pose_mask_max_radius_m"), "{bad}: {e}");
+        }
     }
 }

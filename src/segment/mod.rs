@@ -7,7 +7,9 @@
 //! full-resolution masks pasted in Rust ([`paste`]).
 
 pub mod card;
+pub mod depth_outliers;
 pub mod duplicates;
+pub mod erode;
 pub mod paste;
 pub mod published;
 pub mod rewrite;
@@ -26,7 +28,7 @@ use tract_onnx::pb::ModelProto;
 
 use crate::category::Category;
 use crate::error::{Error, Result};
-use crate::frame::ColorImage;
+use crate::frame::{ColorImage, RgbdFrame};
 use crate::quant::rewrite::ApplyReport;
 use crate::quant::{ModelKind, QuantProfile};
 
@@ -400,6 +402,28 @@ impl Segmenter {
             self.duplicates_dropped.fetch_add(dropped as u64, Ordering::Relaxed);
         }
         Ok(instances)
+    }
+
+    /// The mask the pose stage gets for one of [`Self::segment`]'s detections of `category`
+    /// in `frame`: eroded by the card's `pose_mask_erode_px` ([`erode::erode_for_pose`]), then
+    /// without its depth outliers when the card gives the category a
+    /// `pose_mask_max_radius_m` ([`depth_outliers::drop_far_pixels`]).
+    pub fn pose_mask(&self, mask: Vec<bool>, frame: &RgbdFrame, category: Category) -> Vec<bool> {
+        let mask = erode::erode_for_pose(mask, frame.color.width as usize, self.card.pose_mask_erode_px);
+        match self.card.pose_mask_max_radius_m(category) {
+            Some(radius_m) => depth_outliers::drop_far_pixels(mask, &frame.depth, &frame.intrinsics, radius_m),
+            None => mask,
+        }
+    }
+
+    /// Set the pose stage's mask erosion (pixels; 0: off), overriding the card.
+    pub fn set_pose_mask_erode_px(&mut self, px: usize) {
+        self.card.pose_mask_erode_px = px;
+    }
+
+    /// Turn the pose stage's depth-outlier step off, whatever the card says.
+    pub fn clear_pose_mask_max_radius(&mut self) {
+        self.card.pose_mask_max_radius_m.clear();
     }
 
     /// How many detections [`Self::segment`] has dropped as duplicates.

@@ -71,7 +71,7 @@ pub fn run(b: PipelineBench<'_>) -> Result<()> {
         for run in 0..b.warmup + b.runs {
             for (i, frame) in frames.iter().enumerate() {
                 let t0 = Instant::now();
-                let dets = detections_from_segmenter(&segmenter, &frame.color)?;
+                let dets = detections_from_segmenter(&segmenter, frame)?;
                 let t1 = Instant::now();
                 estimate_detections(&estimator, frame, &dets, mix_seed(&[b.seed, i as u64]))?;
                 let t2 = Instant::now();

@@ -14,6 +14,7 @@ use tricons::pipeline::stages::{
 use tricons::pose::{PoseEstimator, Skipped};
 use tricons::recording::open_recording_with;
 use tricons::segment::Segmenter;
+use tricons::segment::card::MAX_POSE_MASK_ERODE_PX;
 
 use tricons::segment::published::PublishedDetections;
 
@@ -28,6 +29,7 @@ use crate::source_args::BagTopicArgs;
     tricons replay --recording data/synthnocs-test --out data/replay/test.jsonl\n  \
     tricons replay --recording data/synthnocs-test --overlays data/overlays --iou corrected\n  \
     tricons replay --masks gt                        # ground-truth masks: the pose model alone\n  \
+    tricons replay --pose-mask-erode 0 --keep-depth-outliers  # the segmenter's masks as predicted\n  \
     tricons replay --recording NOCS/Real/test/scene_1 --masks results:NOCS/segmentation_results/real_test\n  \
     tricons replay --recording bag.mcap --mcap poses.mcap  # a ROS 2 bag in (RealSense topics), MCAP out\n  \
     tricons replay --recording bag.mcap --color-topic /cam/color/image_raw/compressed --depth-topic /cam/depth\n\n\
@@ -50,6 +52,14 @@ pub struct Args {
     /// Mask R-CNN for `--masks model`: its card or graph (any torchvision export).
     #[arg(long, default_value = DEFAULT_SEGMENTER)]
     segmenter: PathBuf,
+    /// Erode each of the segmenter's masks by PX pixels before the pose stage samples its
+    /// points (0: off) [default: the segmenter card's `pose_mask_erode_px`].
+    #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u16).range(0..=MAX_POSE_MASK_ERODE_PX as i64))]
+    pose_mask_erode: Option<u16>,
+    /// Leave the depth outliers in the segmenter's masks, whatever its card's
+    /// `pose_mask_max_radius_m` says.
+    #[arg(long)]
+    keep_depth_outliers: bool,
     /// Predictions to write (JSON Lines) [default: data/replay/<recording name>.jsonl].
     #[arg(long)]
     out: Option<PathBuf>,
@@ -102,10 +112,22 @@ pub fn run(args: Args) -> Result<()> {
     );
     let masks = match &args.masks {
         MaskSource::Model => {
-            let seg = Segmenter::load(&args.segmenter)
+            let mut seg = Segmenter::load(&args.segmenter)
                 .and_then(|s| s.with_threads(args.segmenter_threads))
                 .with_context(|| "loading the segmenter (--segmenter)")?;
-            log::info!("masks from {}", seg.onnx_path().display());
+            if let Some(px) = args.pose_mask_erode {
+                seg.set_pose_mask_erode_px(usize::from(px));
+            }
+            if args.keep_depth_outliers {
+                seg.clear_pose_mask_max_radius();
+            }
+            let radii = &seg.card().pose_mask_max_radius_m;
+            log::info!(
+                "masks from {}; for the pose stage eroded by {} px, depth outliers {}",
+                seg.onnx_path().display(),
+                seg.card().pose_mask_erode_px,
+                if radii.is_empty() { "kept".to_string() } else { format!("dropped beyond {radii:?} m") }
+            );
             MaskInput::Segmenter(Box::new(seg))
         }
         MaskSource::Gt => MaskInput::GroundTruth,
@@ -138,7 +160,7 @@ pub fn run(args: Args) -> Result<()> {
     for i in 0..rec.len() {
         let frame = rec.read_frame(i)?;
         let detections: Vec<Detection> = match &masks {
-            MaskInput::Segmenter(seg) => detections_from_segmenter(seg, &frame.color)
+            MaskInput::Segmenter(seg) => detections_from_segmenter(seg, &frame)
                 .with_context(|| format!("segmenting frame {}", rec.frame_id(i)))?,
             MaskInput::Published(published) => {
                 let path = published.file_for(&scene, rec.frame_id(i))?;
