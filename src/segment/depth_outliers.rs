@@ -107,9 +107,7 @@ mod tests {
         // dropping what is far from it would keep less than a quarter
         let w = 40;
         let mut wall = vec![false; mask.len()];
-        for i in 0..(w * 5) {
-            wall[i] = true;
-        }
+        wall[..w * 5].iter_mut().for_each(|m| *m = true);
         wall[15 * w + 12] = true;
         let out = drop_far_pixels(wall.clone(), &depth, &intrinsics(40, 30), 0.2);
         assert!(!out[15 * w + 12], "the lone object pixel is the outlier here");
