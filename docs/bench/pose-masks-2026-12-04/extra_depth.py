@@ -1,14 +1,12 @@
 import json, sys, numpy as np
 from pathlib import Path
 from PIL import Image
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "tools"))
+from tricons_pose.maskrcnn import decode_rle  # noqa: E402  (the project's run-length decoder)
 rec, seg = Path(sys.argv[1]), Path(sys.argv[2])
 meta = json.load(open(rec / "recording.json")) if (rec / "recording.json").exists() else None
 def rle(r, h, w):
-    m = np.zeros(h * w, bool); pos = 0; fg = False
-    for n in r:
-        if fg: m[pos:pos + n] = True
-        pos += n; fg = not fg
-    return m.reshape(h, w)
+    return decode_rle(r, h * w).reshape(h, w)
 dd = []; on = []
 for line in open(seg / "segments.jsonl"):
     f = json.loads(line); h, w = f["height"], f["width"]

@@ -5,14 +5,12 @@ import json, sys, numpy as np
 from collections import defaultdict
 from pathlib import Path
 from PIL import Image
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "tools"))
+from tricons_pose.maskrcnn import decode_rle  # noqa: E402  (the project's run-length decoder)
 rec, seg = Path(sys.argv[1]), Path(sys.argv[2])
 man = json.load(open(rec / "manifest.json")); K = man["intrinsics"]; sc = man["depth_scale_m"]
 def rle(r, h, w):
-    m = np.zeros(h * w, bool); pos = 0; fg = False
-    for n in r:
-        if fg: m[pos:pos + n] = True
-        pos += n; fg = not fg
-    return m.reshape(h, w)
+    return decode_rle(r, h * w).reshape(h, w)
 h, w = K["height"], K["width"]
 vv, uu = np.mgrid[0:h, 0:w]
 rows = []

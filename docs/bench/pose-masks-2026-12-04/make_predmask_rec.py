@@ -1,9 +1,11 @@
 """Copy of a recording whose instance masks are the segmenter's (each GT instance gets its
 best-IoU predicted mask, IoU >= 0.3, else it is dropped), optionally filtered by the 3D rule
 (pixels farther than k * max|s|(class) from the mask's median 3D point removed)."""
-import json, os, shutil, sys, numpy as np
+import json, sys, os, shutil, sys, numpy as np
 from pathlib import Path
 from PIL import Image
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "tools"))
+from tricons_pose.maskrcnn import decode_rle  # noqa: E402  (the project's run-length decoder)
 rec, seg, out, k = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3]), float(sys.argv[4])
 ero = int(sys.argv[5]) if len(sys.argv) > 5 else 0
 def erode(m, r):
@@ -17,11 +19,7 @@ man = json.load(open(rec / "manifest.json")); K = man["intrinsics"]; sc = man["d
 shutil.copy(rec / "manifest.json", out / "manifest.json")
 h, w = K["height"], K["width"]; vv, uu = np.mgrid[0:h, 0:w]
 def rle(r):
-    m = np.zeros(h * w, bool); pos = 0; fg = False
-    for n in r:
-        if fg: m[pos:pos + n] = True
-        pos += n; fg = not fg
-    return m.reshape(h, w)
+    return decode_rle(r, h * w).reshape(h, w)
 removed = kept = 0
 for line in open(seg / "segments.jsonl"):
     f = json.loads(line); fr = f["frame"]

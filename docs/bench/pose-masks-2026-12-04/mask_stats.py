@@ -4,13 +4,11 @@ GT pixels missed, and the equivalent dilation radius (extra pixels / GT perimete
 import json, sys, numpy as np
 from pathlib import Path
 from PIL import Image
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "tools"))
+from tricons_pose.maskrcnn import decode_rle  # noqa: E402  (the project's run-length decoder)
 rec, seg = Path(sys.argv[1]), Path(sys.argv[2])
 def rle(r, h, w):
-    m = np.zeros(h * w, bool); pos = 0; fg = False
-    for n in r:
-        if fg: m[pos:pos + n] = True
-        pos += n; fg = not fg
-    return m.reshape(h, w)
+    return decode_rle(r, h * w).reshape(h, w)
 rows = []
 for line in open(seg / "segments.jsonl"):
     f = json.loads(line)
