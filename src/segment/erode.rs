@@ -10,7 +10,9 @@
 
 /// `mask` (row-major, `width` columns) eroded by the `(2 radius + 1)`-square: a pixel stays
 /// set when every pixel of the square around it that lies inside the image is set.
-/// Separable: a horizontal then a vertical pass, each linear in the pixel count.
+/// Separable (a horizontal then a vertical pass, each linear in its pixel count) and done
+/// only over the mask's bounding box grown by `radius`: nothing outside it can stay set,
+/// and nothing inside it sees farther.
 ///
 /// A `width` of 0 or one that does not divide `mask.len()` leaves the mask as it is (there
 /// is no image to erode).
@@ -19,31 +21,45 @@ pub fn erode_mask(mask: &[bool], width: usize, radius: usize) -> Vec<bool> {
         return mask.to_vec();
     }
     let height = mask.len() / width;
-    let mut rows = vec![false; mask.len()];
-    for (src, dst) in mask.chunks_exact(width).zip(rows.chunks_exact_mut(width)) {
-        erode_line(src.iter().copied(), width, radius, |i, v| dst[i] = v);
-    }
     let mut out = vec![false; mask.len()];
-    for c in 0..width {
-        erode_line((0..height).map(|r| rows[r * width + c]), height, radius, |r, v| out[r * width + c] = v);
+    let Some((y0, y1, x0, x1)) = crate::pose::preprocess::mask_bbox(mask, width) else {
+        return out;
+    };
+    let (y0, y1) = (y0.saturating_sub(radius), (y1 + radius).min(height));
+    let (x0, x1) = (x0.saturating_sub(radius), (x1 + radius).min(width));
+    let (w, h) = (x1 - x0, y1 - y0);
+    // the window's edges inside the image are `radius` away from any set pixel, so treating
+    // them as the image's edge changes only pixels that are unset anyway
+    let mut rows = vec![false; w * h];
+    let (mut line, mut prefix) = (Vec::with_capacity(w.max(h)), Vec::with_capacity(w.max(h) + 1));
+    for (r, dst) in rows.chunks_exact_mut(w).enumerate() {
+        line.clear();
+        line.extend_from_slice(&mask[(y0 + r) * width + x0..(y0 + r) * width + x1]);
+        erode_line(&line, radius, &mut prefix, |i, v| dst[i] = v);
+    }
+    for c in 0..w {
+        line.clear();
+        line.extend((0..h).map(|r| rows[r * w + c]));
+        erode_line(&line, radius, &mut prefix, |r, v| out[(y0 + r) * width + x0 + c] = v);
     }
     out
 }
 
-/// One line of `len` values: position `i` becomes set when no unset value lies in
-/// `i - radius ..= i + radius` (clipped to the line). A running count of the unset values
-/// in the window.
-fn erode_line(line: impl Iterator<Item = bool>, len: usize, radius: usize, mut set: impl FnMut(usize, bool)) {
-    let values: Vec<bool> = line.collect();
-    let holes_prefix: Vec<usize> = std::iter::once(0)
-        .chain(values.iter().scan(0usize, |n, &v| {
-            *n += usize::from(!v);
-            Some(*n)
-        }))
-        .collect();
+/// One line: position `i` becomes set when no unset value lies in `i - radius ..= i +
+/// radius` (clipped to the line), from a prefix count of the unset values (`prefix` is
+/// scratch space).
+fn erode_line(line: &[bool], radius: usize, prefix: &mut Vec<usize>, mut set: impl FnMut(usize, bool)) {
+    prefix.clear();
+    prefix.push(0);
+    let mut holes = 0;
+    for &v in line {
+        holes += usize::from(!v);
+        prefix.push(holes);
+    }
+    let len = line.len();
     for i in 0..len {
         let (lo, hi) = (i.saturating_sub(radius), (i + radius + 1).min(len));
-        set(i, holes_prefix[hi] == holes_prefix[lo]);
+        set(i, prefix[hi] == prefix[lo]);
     }
 }
 
@@ -110,6 +126,27 @@ mod tests {
             let m = random_mask(&mut rng, w, h);
             for radius in 0..4 {
                 assert_eq!(erode_mask(&m, w, radius), erode_reference(&m, w, radius), "case {case} {w}x{h} r={radius}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_blob_far_from_the_border_erodes_as_the_definition_says() {
+        // the work is done in the bounding box grown by the radius: its edges lie inside
+        // the image here, and an empty mask stays empty
+        let mut rng = Rng::new(9);
+        let (w, h) = (31, 27);
+        assert_eq!(erode_mask(&vec![false; w * h], w, 2), vec![false; w * h]);
+        for case in 0..20 {
+            let mut m = vec![false; w * h];
+            let (y0, x0) = (8 + rng.below(4), 9 + rng.below(4));
+            for y in y0..y0 + 7 {
+                for x in x0..x0 + 8 {
+                    m[y * w + x] = rng.below(5) > 0;
+                }
+            }
+            for radius in 1..4 {
+                assert_eq!(erode_mask(&m, w, radius), erode_reference(&m, w, radius), "case {case} r={radius}");
             }
         }
     }
