@@ -18,11 +18,7 @@ fn bench(c: &mut Criterion) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let rec = open_recording(&root.join("tests/data/synthnocs-demo")).expect("the demo recording");
     let frame = rec.read_frame(0).expect("frame 0");
-    let masks = rec
-        .read_annotations(0)
-        .expect("annotations")
-        .and_then(|a| a.instance_masks())
-        .expect("instance masks");
+    let masks = rec.read_annotations(0).expect("annotations").and_then(|a| a.instance_masks()).expect("instance masks");
     let width = frame.color.width as usize;
     let mut g = c.benchmark_group(format!("pose_mask/{}_masks_640x480", masks.len()));
     g.bench_function("erode_1px", |b| {
