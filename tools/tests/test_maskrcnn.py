@@ -172,3 +172,22 @@ def test_import_onnx_reproduces_the_shipped_segmenter(tmp_path):
     assert cmp["box_px"] <= 0.5, cmp
     assert cmp["score"] <= 1e-3, cmp
     assert cmp["mask_iou"] >= 0.98, cmp
+
+
+def test_a_re_export_keeps_the_fields_chosen_for_the_shipped_card(tmp_path):
+    """write_card over an existing card keeps its thresholds, duplicate suppression and
+    pose-stage mask fields (chosen by evaluation) and records the new graph's hash."""
+    shipped = json.loads((REPO / "models" / "maskrcnn-light.card.json").read_text())
+    graph = tmp_path / "m.onnx"
+    graph.write_bytes(b"not really a graph")
+    card = tmp_path / "m.card.json"
+    card.write_text(json.dumps(shipped))
+    mr.write_card(card, graph.name, {"architecture": "test"})
+    new = json.loads(card.read_text())
+    for k in mr.KEPT_CARD_FIELDS:
+        assert new.get(k) == shipped.get(k), k
+    assert new["pose_mask_erode_px"] == 1 and new["pose_mask_max_radius_m"]["mug"] == 0.14
+    assert new["model"] == "m.onnx" and new["sha256"] != shipped["sha256"]
+    fresh = tmp_path / "fresh.card.json"
+    mr.write_card(fresh, graph.name, {"architecture": "test"})
+    assert "pose_mask_erode_px" not in json.loads(fresh.read_text())

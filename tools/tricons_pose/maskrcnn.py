@@ -279,9 +279,21 @@ def export_onnx(model, path: Path, height: int = 480, width: int = 640, opset: i
     os.replace(tmp, path)
 
 
+# card fields chosen for a shipped model by evaluation (docs/results.md), which a re-export
+# over an existing card keeps: thresholds, duplicate suppression, the pose stage's masks
+KEPT_CARD_FIELDS = ("score_threshold", "mask_threshold", "duplicate_mask_iou",
+                    "pose_mask_erode_px", "pose_mask_max_radius_m")
+
+
 def write_card(path: Path, onnx_name: str, extra: dict):
+    """Write the segmenter card of ``onnx_name`` (beside ``path``); when a card is already at
+    ``path``, its :data:`KEPT_CARD_FIELDS` stay as they are."""
     import hashlib
 
+    kept = {}
+    if path.exists():
+        old = json.loads(path.read_text())
+        kept = {k: old[k] for k in KEPT_CARD_FIELDS if k in old}
     card = {
         "format": "tricons-segmenter-card",
         "version": 1,
@@ -294,6 +306,7 @@ def write_card(path: Path, onnx_name: str, extra: dict):
         "score_threshold": 0.5,
         "mask_threshold": 0.5,
         **extra,
+        **kept,
     }
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(card, indent=2) + "\n")
