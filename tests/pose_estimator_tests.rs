@@ -467,6 +467,66 @@ fn rotation_from_keypoints_follows_the_card_and_matches_pytorch() {
     assert!(err.contains("outputs"), "{err}");
 }
 
+/// `consistency_score_scale`: the reported score is the detection's times
+/// exp(-r / scale), r the RMS distance between the keypoints and their NOCS coordinates
+/// carried by the head's pose, in box diagonals; here r computed independently from the
+/// PyTorch reference's outputs of the fixtures (R, t, s, kpt_3d, kpt_nocs).
+#[test]
+fn the_consistency_score_follows_the_card_and_the_pytorch_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let card = copy_model(dir.path());
+    edit_card(&card, |v| {
+        v.as_object_mut().unwrap().remove("consistency_score_scale");
+    });
+    let plain = PoseEstimator::load(&card).unwrap();
+    edit_card(&card, |v| v["consistency_score_scale"] = serde_json::json!(0.3));
+    let est = PoseEstimator::load(&card).unwrap();
+    let all = cases("pose_net");
+    let out = est.run_inputs(&fixture_inputs(&all)).unwrap();
+    let mut residuals = Vec::new();
+    for (c, o) in all.iter().zip(out) {
+        let e = o.expect("estimated");
+        let (r, t, s) = (c.get("R").f32(), c.get("t").f32(), c.get("s").f32());
+        let (kpt_3d, kpt_nocs) = (c.get("kpt_3d").f32(), c.get("kpt_nocs").f32());
+        let diagonal = s.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
+        let mut sum_sq = 0.0;
+        for (p, n) in kpt_3d.chunks_exact(3).zip(kpt_nocs.chunks_exact(3)) {
+            for i in 0..3 {
+                let carried: f64 =
+                    diagonal * (0..3).map(|j| r[3 * i + j] as f64 * n[j] as f64).sum::<f64>() + t[i] as f64;
+                sum_sq += (carried - p[i] as f64).powi(2);
+            }
+        }
+        let residual = (sum_sq / (kpt_3d.len() / 3) as f64).sqrt() / diagonal;
+        let want = 0.8 * (-residual / 0.3).exp();
+        let got = est.score(&e, 0.8);
+        assert!((got - want).abs() < 1e-3, "score {got}, from PyTorch's outputs {want} (residual {residual})");
+        assert_eq!(plain.score(&e, 0.8), 0.8, "without the field the detection's score is reported");
+        residuals.push(residual);
+    }
+    assert!(residuals.iter().all(|&r| r > 0.0 && r < 0.3), "{residuals:?}");
+
+    // a keypoint moved off its place lowers the score
+    let mut e = est.run_inputs(&fixture_inputs(&all[..1])).unwrap().remove(0).expect("estimated");
+    let before = est.score(&e, 1.0);
+    e.keypoints_camera_m[0] = e.keypoints_camera_m[0].map(|v| v + 0.2);
+    assert!(est.score(&e, 1.0) < before);
+
+    // bad cards: a scale that is not positive; the keypoint outputs missing
+    for bad in [serde_json::json!(0.0), serde_json::json!(-1.0)] {
+        edit_card(&card, |v| v["consistency_score_scale"] = bad.clone());
+        let err = PoseEstimator::load(&card).unwrap_err().to_string();
+        assert!(err.contains("consistency_score_scale") && err.contains("positive"), "{err}");
+    }
+    edit_card(&card, |v| {
+        v["consistency_score_scale"] = serde_json::json!(0.3);
+        v["rotation_from_keypoints"] = serde_json::json!([]);
+        v["outputs"].as_array_mut().unwrap().truncate(3);
+    });
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("consistency_score_scale") && err.contains("kpt_nocs"), "{err}");
+}
+
 /// The early pixel gather on a hand-made decoder tail (`fuzz/seeds/onnx_graph/pixel_tail.onnx`,
 /// written by fuzz/make_seeds.py): the Resize sampled, the four per-pixel nodes moved, the
 /// picked rows equal to the graph's as written, and an index outside the map an error.

@@ -9,9 +9,10 @@
 #   OUT_DIR     gets tricons-pose.onnx + card, <gt|model>-seed<S>.{jsonl,eval.json,txt}, summary.md
 #   RECORDING   default data/synthnocs-val
 # Environment: TRICONS (default target/release/tricons), SEEDS (default "0 1 2"),
-#   MASKS (default "gt model"), ROTATION_FROM_KEYPOINTS (default bowl, as the shipped card).
+#   MASKS (default "gt model"), ROTATION_FROM_KEYPOINTS (default bowl, as the shipped card),
+#   CONSISTENCY_SCORE_SCALE (default 0.3, as the shipped card; "none" leaves the field out).
 set -euo pipefail
-[ $# -ge 2 ] || { sed -n 2,13p "$0" >&2; exit 2; }
+[ $# -ge 2 ] || { sed -n 2,14p "$0" >&2; exit 2; }
 ckpt=$1 out=$2 rec=${3:-data/synthnocs-val}
 tricons=${TRICONS:-target/release/tricons}
 seeds=${SEEDS:-0 1 2}
@@ -19,11 +20,13 @@ masks=${MASKS:-gt model}
 [ -f "$ckpt" ] || { echo "error: no checkpoint $ckpt" >&2; exit 1; }
 [ -x "$tricons" ] || { echo "error: $tricons not built (cargo build --release)" >&2; exit 1; }
 mkdir -p "$out"
+consistency=
+[ "${CONSISTENCY_SCORE_SCALE:-0.3}" = none ] || consistency="--consistency-score-scale ${CONSISTENCY_SCORE_SCALE:-0.3}"
 root=$(pwd)
 out=$(cd "$out" && pwd)
 case $ckpt in /*) ;; *) ckpt=$root/$ckpt ;; esac
 (cd tools && .venv/bin/python -m tricons_pose.export --checkpoint "$ckpt" --out "$out/tricons-pose.onnx" \
-    --rotation-from-keypoints "${ROTATION_FROM_KEYPOINTS:-bowl}" >"$out/export.log" 2>&1) \
+    --rotation-from-keypoints "${ROTATION_FROM_KEYPOINTS:-bowl}" $consistency >"$out/export.log" 2>&1) \
     || { cat "$out/export.log" >&2; echo "error: export of $ckpt failed" >&2; exit 1; }
 for m in $masks; do
     for s in $seeds; do

@@ -177,7 +177,7 @@ pub fn estimate_detections(
         match o {
             Ok(e) => instances.push(PredInstance {
                 class: d.class,
-                score: d.score,
+                score: estimator.score(&e, d.score),
                 camera_from_object: estimator.camera_from_object(&e, d.class),
                 size_m: e.size_m,
                 box2d: d.box2d,

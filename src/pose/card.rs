@@ -50,6 +50,12 @@ pub struct ModelCard {
     /// How that rotation is fitted (default: least squares over every keypoint).
     #[serde(default)]
     pub keypoint_fit: KeypointFit,
+    /// When set, the reported score is the detection's times `exp(-r / scale)`, `r` the
+    /// disagreement between the pose head and the keypoints in box diagonals
+    /// ([`crate::pose::consistency`]); absent (the default) reports the detection's score.
+    /// Needs the keypoint outputs. Chosen on SynthNOCS-val (tools/MODEL.md, E11).
+    #[serde(default)]
+    pub consistency_score_scale: Option<f64>,
 }
 
 /// The fit of [`ModelCard::rotation_from_keypoints`].
@@ -126,6 +132,16 @@ impl ModelCard {
             return bad(format!(
                 "field `rotation_from_keypoints`: needs the outputs kpt_3d, kpt_nocs after R, t, s, found {outputs:?}"
             ));
+        }
+        if let Some(scale) = card.consistency_score_scale {
+            if !(scale > 0.0 && scale.is_finite()) {
+                return bad(format!("field `consistency_score_scale`: must be a positive number, found {scale}"));
+            }
+            if outputs.get(3..5) != Some(&["kpt_3d", "kpt_nocs"].map(String::from)[..]) {
+                return bad(format!(
+                    "field `consistency_score_scale`: needs the outputs kpt_3d, kpt_nocs after R, t, s, found {outputs:?}"
+                ));
+            }
         }
         let (p, rgb_scale) = (&card.preprocessing.config, card.preprocessing.rgb_scale);
         if p.n_points == 0 || p.crop_size == 0 || p.crop_step_px == 0 || p.max_crop_px < p.crop_step_px {

@@ -249,6 +249,24 @@ impl PoseEstimator {
             .map_or(head, |rotation| Pose::new(rotation, head.translation_m))
     }
 
+    /// The score to report for an estimate of a detection scored `detection_score`: as is,
+    /// or with the card's `consistency_score_scale` times the factor
+    /// [`crate::pose::consistency::consistency_score`] of the estimate's keypoint residual.
+    pub fn score(&self, estimate: &PoseEstimate, detection_score: f64) -> f64 {
+        match self.card.consistency_score_scale {
+            None => detection_score,
+            Some(scale) => {
+                let residual = crate::pose::consistency::keypoint_residual(
+                    &estimate.camera_from_object,
+                    estimate.size_m,
+                    &estimate.keypoints_nocs,
+                    &estimate.keypoints_camera_m,
+                );
+                detection_score * crate::pose::consistency::consistency_score(residual, scale)
+            }
+        }
+    }
+
     /// Where the card was read from.
     pub fn card_path(&self) -> &Path {
         &self.card_path

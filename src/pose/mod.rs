@@ -6,9 +6,11 @@
 //! [`early_gather`], runs the image decoder's per-pixel layers on the sampled pixels
 //! only), [`estimator`] runs
 //! the graph ([`PoseEstimator`]) after [`fold`] has folded batch normalisation into
-//! the weights before it.
+//! the weights before it. [`consistency`] scores a pose by how well the head agrees with
+//! the network's keypoints.
 
 pub mod card;
+pub mod consistency;
 pub mod early_gather;
 pub mod estimator;
 pub mod fold;

@@ -107,8 +107,9 @@ def test_cli_random_init_writes_onnx_and_card(tmp_path, monkeypatch):
     metrics.write_text(json.dumps({"mean": {"5deg2cm": 12.5}}))
     out = tmp_path / "sub" / "m.onnx"
     assert export.main(["--config", str(cfg_file), "--random-init", "5", "--out", str(out),
-                        "--metrics", f"published={metrics}"]) == 0
+                        "--metrics", f"published={metrics}", "--consistency-score-scale", "0.3"]) == 0
     card = json.loads((tmp_path / "sub" / "m.card.json").read_text())
+    assert card["consistency_score_scale"] == 0.3
     data = out.read_bytes()
     assert card["onnx"]["sha256"] == hashlib.sha256(data).hexdigest() and card["onnx"]["bytes"] == len(data)
     assert card["weights"] == {"kind": "random", "seed": 5}
@@ -128,6 +129,11 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     with pytest.raises(SystemExit, match="bad.json"):
         export.main(["--config", "shipped", "--random-init", "0", "--out", str(tmp_path / "x.onnx"),
                      "--metrics", f"published={bad}"])
+    assert not (tmp_path / "x.onnx").exists()
+    with pytest.raises(SystemExit):
+        export.main(["--config", "shipped", "--random-init", "0", "--out", str(tmp_path / "x.onnx"),
+                     "--consistency-score-scale", "0"])
+    assert "--consistency-score-scale" in capsys.readouterr().err
     assert not (tmp_path / "x.onnx").exists()
 
 

@@ -210,11 +210,14 @@ def standard_op_types(onnx_bytes: bytes) -> list[str]:
 
 
 def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dict, check: dict | None,
-               metrics: Dict[str, dict], n_params: int, rotation_from_keypoints: Sequence[str] = ()) -> dict:
+               metrics: Dict[str, dict], n_params: int, rotation_from_keypoints: Sequence[str] = (),
+               consistency_score_scale: float | None = None) -> dict:
     """The model card (docs/formats.md, "Model card")."""
     unknown = sorted(set(rotation_from_keypoints) - set(CLASSES))
     if unknown:
         raise ValueError(f"rotation_from_keypoints: unknown classes {unknown} (known: {CLASSES})")
+    if consistency_score_scale is not None and not (0 < consistency_score_scale < float("inf")):
+        raise ValueError(f"consistency_score_scale: must be a positive number, found {consistency_score_scale}")
     crop, n, m = cfg.crop_size, cfg.n_points, cfg.n_keypoints
     return {
         "format": CARD_FORMAT,
@@ -261,6 +264,7 @@ def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dic
         },
         "categories": list(CLASSES),
         "rotation_from_keypoints": [c for c in CLASSES if c in set(rotation_from_keypoints)],
+        **({} if consistency_score_scale is None else {"consistency_score_scale": consistency_score_scale}),
         "n_keypoints": m,
         "parameters": n_params,
         "config": cfg.to_dict(),
@@ -330,7 +334,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--rotation-from-keypoints", default="", metavar="CLASSES",
                    help="comma-separated classes (or 'all') whose rotation the runtime solves from the keypoints' "
                         "NOCS coordinates instead of taking the pose head's (card field; tools/MODEL.md)")
+    p.add_argument("--consistency-score-scale", type=float, metavar="SCALE",
+                   help="the runtime reports each pose's score times exp(-r / SCALE), r the disagreement "
+                        "between the pose head and the keypoints in box diagonals (card field; the shipped "
+                        "card: 0.3; tools/MODEL.md, E11)")
     args = p.parse_args(argv)
+    scale = args.consistency_score_scale
+    if scale is not None and not 0 < scale < float("inf"):
+        p.error(f"--consistency-score-scale: must be a positive number, found {scale}")
 
     if args.config is not None:
         if args.random_init is None:
@@ -367,7 +378,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .predict import parse_classes
 
     card = build_card(cfg, out.name, onnx_bytes, weights, check, metrics, n_params,
-                      parse_classes(args.rotation_from_keypoints))
+                      parse_classes(args.rotation_from_keypoints), args.consistency_score_scale)
     write_atomic(out, onnx_bytes)
     write_atomic(card_path(out), (json.dumps(card, indent=2) + "\n").encode("utf-8"))
     msg = f"{out} ({len(onnx_bytes) / 1e6:.2f} MB, {n_params} parameters) + {card_path(out).name}"

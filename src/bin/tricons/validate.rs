@@ -272,7 +272,7 @@ fn validate_pose(args: &Args, rec: &dyn Recording, frames: usize, profile: &Quan
                     };
                     Some(PredInstance {
                         class: g.class,
-                        score: 1.0,
+                        score: model.score(e, 1.0),
                         camera_from_object: model.camera_from_object(e, g.class),
                         size_m: e.size_m,
                         box2d: None,
