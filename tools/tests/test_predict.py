@@ -131,3 +131,40 @@ def test_rotation_from_keypoints_replaces_only_the_listed_classes(recording):
     assert parse_classes("bottle, mug") == ("bottle", "mug") and parse_classes("") == ()
     with pytest.raises(ValueError, match="unknown classes"):
         predict_recording(model, cfg, recording, rotation_from_keypoints=("cup",))
+
+
+def test_keypoint_residual_exact_cases():
+    """Keypoints on the head's pose give 0; every keypoint moved by a 3-4-0 cm vector
+    gives 5 cm over the diagonal; a larger disagreement gives a larger residual."""
+    from tricons_pose.predict import keypoint_residual
+
+    torch.manual_seed(1)
+    R = torch.linalg.qr(torch.randn(2, 3, 3, dtype=torch.float64))[0]
+    R = R * torch.linalg.det(R)[:, None, None]  # proper rotations
+    t = torch.tensor([[0.1, -0.2, 0.9], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    s = torch.tensor([[0.08, 0.2, 0.08], [0.3, 0.4, 0.0]], dtype=torch.float64)
+    nocs = torch.rand(2, 16, 3, dtype=torch.float64) - 0.5
+    d = s.norm(dim=-1)
+    on_pose = d[:, None, None] * (nocs @ R.transpose(1, 2)) + t[:, None, :]
+    assert torch.allclose(keypoint_residual(R, t, s, nocs, on_pose), torch.zeros(2, dtype=torch.float64), atol=1e-12)
+    moved = on_pose + torch.tensor([0.03, 0.04, 0.0], dtype=torch.float64)
+    got = keypoint_residual(R, t, s, nocs, moved)
+    assert torch.allclose(got, 0.05 / d)
+    assert (keypoint_residual(R, t, s, nocs, on_pose + 2 * (moved - on_pose)) > got).all()
+
+
+def test_consistency_scores_leave_the_poses_alone(recording):
+    """With a consistency scale the scores are exp(-r / scale) in (0, 1]; every pose is
+    the one reported without it."""
+    torch.manual_seed(0)
+    cfg = tiny_config()
+    model = TriConsPose(cfg).eval()
+    plain = predict_recording(model, cfg, recording, batch_size=4)
+    scored = predict_recording(model, cfg, recording, batch_size=4, consistency_score_scale=0.3)
+    n = 0
+    for fp, fs in zip(plain, scored):
+        for p, q in zip(fp["instances"], fs["instances"]):
+            assert p["score"] == 1.0 and 0.0 < q["score"] < 1.0
+            assert (p["R"], p["t"], p["s"]) == (q["R"], q["t"], q["s"])
+            n += 1
+    assert n > 0

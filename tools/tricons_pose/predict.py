@@ -48,7 +48,7 @@ def load_model(path: str | os.PathLike) -> tuple[TriConsPose, ModelConfig]:
 def predict_recording(
     model: TriConsPose, cfg: ModelConfig, data: str | os.PathLike, batch_size: int = 32, seed: int = 0,
     cache_dir: str | os.PathLike | None = None, sampler: str = "numpy",
-    rotation_from_keypoints: Collection[str] = (),
+    rotation_from_keypoints: Collection[str] = (), consistency_score_scale: float | None = None,
 ) -> list[dict]:
     """Predictions for every frame of recording ``data``, in frame order.
 
@@ -64,6 +64,9 @@ def predict_recording(
     rotation between the keypoints' predicted NOCS coordinates and their camera-frame
     positions (:func:`keypoint_rotation`) instead of the pose head's, as the runtime does
     for the classes its model card lists (``rotation_from_keypoints``, tools/MODEL.md).
+
+    Scores are 1 (ground-truth masks), or with ``consistency_score_scale`` the runtime's
+    ``exp(-r / scale)`` of :func:`keypoint_residual` (the card field of that name).
     """
     unknown = set(rotation_from_keypoints) - set(CLASSES)
     if unknown:
@@ -84,13 +87,17 @@ def predict_recording(
         inputs = {k: torch.stack([s[k] for s in samples]) for k in ("rgb", "pts", "choose", "class_id")}
         out = model(inputs)
         R_kpt = keypoint_rotation(out["kpt_nocs"], out["kpt_3d"]) if rotation_from_keypoints else None
+        scores = torch.ones(len(idx), dtype=torch.float64)
+        if consistency_score_scale is not None:
+            r = keypoint_residual(out["R"], out["t"], out["s"], out["kpt_nocs"], out["kpt_3d"])
+            scores = torch.exp(-r / consistency_score_scale)
         for b, i in enumerate(idx):
             ref = ds.index[i]
             inst = ds._anns[(ref.rec, ref.frame)][ref.pos]
             per_frame.setdefault(ref.frame, []).append(
                 {
                     "class": inst.cls,
-                    "score": 1.0,
+                    "score": float(scores[b]),
                     "R": (R_kpt if inst.cls in rotation_from_keypoints else out["R"])[b].double().tolist(),
                     "t": out["t"][b].double().tolist(),
                     "s": out["s"][b].double().tolist(),
@@ -113,6 +120,17 @@ def keypoint_rotation(kpt_nocs: torch.Tensor, kpt_3d: torch.Tensor) -> torch.Ten
     d = torch.sign(torch.linalg.det(U @ Vh))
     D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
     return (U @ D @ Vh).to(kpt_3d.dtype)
+
+
+def keypoint_residual(R: torch.Tensor, t: torch.Tensor, s: torch.Tensor, kpt_nocs: torch.Tensor,
+                      kpt_3d: torch.Tensor) -> torch.Tensor:
+    """(B,) disagreement between the pose head and the keypoints, in box diagonals: the
+    root mean square over the M keypoints of ``|d R n + t - p|`` over ``d``, ``d`` the
+    diagonal of ``s`` (B, 3), ``n`` from ``kpt_nocs`` and ``p`` from ``kpt_3d`` (B, M, 3);
+    float64. The runtime's ``pose::consistency::keypoint_residual``."""
+    d = s.double().norm(dim=-1)
+    carried = d[:, None, None] * (kpt_nocs.double() @ R.double().transpose(1, 2)) + t.double()[:, None, :]
+    return (carried - kpt_3d.double()).pow(2).sum(-1).mean(-1).sqrt() / d
 
 
 def parse_classes(text: str) -> tuple[str, ...]:
@@ -158,12 +176,17 @@ def main(argv: list[str] | None = None) -> None:
                    help="comma-separated classes (or 'all') whose rotation is solved from the keypoints' "
                         "predicted NOCS coordinates instead of taken from the pose head (the model card's "
                         "rotation_from_keypoints; tools/MODEL.md)")
+    p.add_argument("--consistency-score-scale", type=float, metavar="SCALE",
+                   help="score each pose exp(-r / SCALE), r the pose head's disagreement with the keypoints "
+                        "in box diagonals (the model card's consistency_score_scale; default: scores 1)")
     args = p.parse_args(argv)
+    if args.consistency_score_scale is not None and not 0 < args.consistency_score_scale < float("inf"):
+        p.error(f"--consistency-score-scale: must be a positive number, found {args.consistency_score_scale}")
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     model, cfg = load_model(args.checkpoint)
     frames = predict_recording(model, cfg, args.data, args.batch_size, args.seed, args.cache_dir, args.sampler,
-                                parse_classes(args.rotation_from_keypoints))
+                                parse_classes(args.rotation_from_keypoints), args.consistency_score_scale)
     write_jsonl(args.out, frames)
     n = sum(len(f["instances"]) for f in frames)
     print(f"{n} instances in {len(frames)} frames -> {args.out}")

@@ -10,7 +10,8 @@ use tricons::synth::{Split, SynthConfig, generate};
 #[command(after_help = "Examples:\n  \
     tricons synth --split test --out data/synthnocs-test        # the fixed 500-frame benchmark split\n  \
     tricons synth --split val --out data/synthnocs-val\n  \
-    tricons synth --out data/train --frames 20000 --seed 7       # training data, any seed and size\n\n\
+    tricons synth --out data/train --frames 20000 --seed 7       # training data, any seed and size\n  \
+    tricons synth --out data/train-dis --frames 4000 --seed 5 --max-distractors 8   # more no-objects\n\n\
     The same seed gives byte-identical files (same binary and platform). See docs/synthnocs.md.")]
 pub struct Args {
     /// Output recording directory.
@@ -34,6 +35,10 @@ pub struct Args {
     /// Most annotated objects per scene.
     #[arg(long, default_value_t = SynthConfig::default().max_objects)]
     max_objects: usize,
+    /// Most unannotated distractors (boxes, spheres, cylinders, tori) per scene; each scene
+    /// draws 0 to this many. Training data with more teaches a segmenter what is no object.
+    #[arg(long, default_value_t = SynthConfig::default().max_distractors)]
+    max_distractors: usize,
     /// Render perfect depth (no sensor noise or holes).
     #[arg(long)]
     no_depth_noise: bool,
@@ -52,6 +57,7 @@ pub fn run(args: Args) -> Result<()> {
     let cfg = SynthConfig {
         min_objects: args.min_objects,
         max_objects: args.max_objects,
+        max_distractors: args.max_distractors,
         depth_noise: !args.no_depth_noise,
         ..SynthConfig::default()
     };
