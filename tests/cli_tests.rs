@@ -94,6 +94,22 @@ fn synth_is_deterministic_and_never_clobbers_a_recording() {
 
     let o = tricons(&["synth", "--split", "test", "--seed", "3", "--out", dir.path().join("t").to_str().unwrap()]);
     assert_clean_failure(&o, "fixed seed");
+
+    // --max-distractors reaches the generator: no distractor changes the frames, too many is refused
+    let c = dir.path().join("c");
+    let o = tricons(&["synth", "--out", c.to_str().unwrap(), "--frames", "2", "--seed", "5", "--max-distractors", "0"]);
+    assert!(o.status.success(), "synth failed: {}", stderr(&o));
+    assert!(names.iter().any(|n| fs::read(a.join(n)).unwrap() != fs::read(c.join(n)).unwrap()));
+    let o = tricons(&[
+        "synth",
+        "--out",
+        dir.path().join("d").to_str().unwrap(),
+        "--frames",
+        "1",
+        "--max-distractors",
+        "65",
+    ]);
+    assert_clean_failure(&o, "max_distractors");
 }
 
 #[test]
