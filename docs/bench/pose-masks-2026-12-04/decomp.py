@@ -1,19 +1,13 @@
 """Where does the full pipeline lose against GT masks? Per GT instance: the GT-mask prediction
 and the nearest same-class model-mask prediction (by centre, < 10 cm); the share within
 10°5cm / 5°2cm of each on the same instances, plus instances with no same-class prediction."""
-import json, sys, numpy as np
+import json, os, sys, numpy as np
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from nocs_errors import rerr, terr  # noqa: E402
 from collections import defaultdict
-SYM = {"bottle", "bowl", "can"}
 def load(p):
     return {json.loads(l)["frame"]: json.loads(l)["instances"] for l in open(p)}
 gt, pg, pm = load(sys.argv[1]), load(sys.argv[2]), load(sys.argv[3])
-def rerr(a, b, cls):
-    Ra, Rb = np.array(a["R"]), np.array(b["R"])
-    if cls in SYM:
-        ya, yb = Ra[:, 1], Rb[:, 1]
-        return np.degrees(np.arccos(np.clip(ya @ yb / np.linalg.norm(ya) / np.linalg.norm(yb), -1, 1)))
-    return np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1)))
-def terr(a, b): return np.linalg.norm(np.array(a["t"]) - np.array(b["t"])) * 100
 def nearest(g, preds):
     c = [p for p in preds if p["class"] == g["class"]]
     if not c: return None

@@ -3,18 +3,13 @@
 its class within 10 cm; bottle, bowl and can by the angle of their symmetry axes, every other
 class (mugs included, whether or not the handle shows) by the full rotation. Throwaway, for the
 record. Usage: python median_rotation.py GT.jsonl PRED.jsonl"""
-import json, sys, numpy as np
+import json, os, sys, numpy as np
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from nocs_errors import rerr, terr  # noqa: E402
 from collections import defaultdict
-SYM = {"bottle", "bowl", "can"}
-def load(p): return {json.loads(l)["frame"]: json.loads(l)["instances"] for l in open(p)}
+def load(p):
+    return {json.loads(l)["frame"]: json.loads(l)["instances"] for l in open(p)}
 gt, pr = load(sys.argv[1]), load(sys.argv[2])
-def rerr(a, b, cls):
-    Ra, Rb = np.array(a["R"]), np.array(b["R"])
-    if cls in SYM:
-        ya, yb = Ra[:, 1], Rb[:, 1]
-        return np.degrees(np.arccos(np.clip(ya @ yb / np.linalg.norm(ya) / np.linalg.norm(yb), -1, 1)))
-    return np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1)))
-def terr(a, b): return np.linalg.norm(np.array(a["t"]) - np.array(b["t"])) * 100
 errs = defaultdict(list)
 for f, gis in gt.items():
     for g in gis:
