@@ -126,20 +126,19 @@ impl ModelCard {
         if outputs.get(..3) != Some(&["R", "t", "s"].map(String::from)[..]) {
             return bad(format!("field `outputs`: expected R, t, s first, found {outputs:?}"));
         }
-        if !card.rotation_from_keypoints.is_empty()
-            && outputs.get(3..5) != Some(&["kpt_3d", "kpt_nocs"].map(String::from)[..])
+        if let Some(scale) = card.consistency_score_scale
+            && !(scale > 0.0 && scale.is_finite())
         {
-            return bad(format!(
-                "field `rotation_from_keypoints`: needs the outputs kpt_3d, kpt_nocs after R, t, s, found {outputs:?}"
-            ));
+            return bad(format!("field `consistency_score_scale`: must be a positive number, found {scale}"));
         }
-        if let Some(scale) = card.consistency_score_scale {
-            if !(scale > 0.0 && scale.is_finite()) {
-                return bad(format!("field `consistency_score_scale`: must be a positive number, found {scale}"));
-            }
-            if outputs.get(3..5) != Some(&["kpt_3d", "kpt_nocs"].map(String::from)[..]) {
+        let has_keypoint_outputs = outputs.get(3..5) == Some(&["kpt_3d", "kpt_nocs"].map(String::from)[..]);
+        for (used, field) in [
+            (!card.rotation_from_keypoints.is_empty(), "rotation_from_keypoints"),
+            (card.consistency_score_scale.is_some(), "consistency_score_scale"),
+        ] {
+            if used && !has_keypoint_outputs {
                 return bad(format!(
-                    "field `consistency_score_scale`: needs the outputs kpt_3d, kpt_nocs after R, t, s, found {outputs:?}"
+                    "field `{field}`: needs the outputs kpt_3d, kpt_nocs after R, t, s, found {outputs:?}"
                 ));
             }
         }
