@@ -191,3 +191,51 @@ def test_a_re_export_keeps_the_fields_chosen_for_the_shipped_card(tmp_path):
     fresh = tmp_path / "fresh.card.json"
     mr.write_card(fresh, graph.name, {"architecture": "test"})
     assert "pose_mask_erode_px" not in json.loads(fresh.read_text())
+
+
+def test_training_data_spans_several_recordings_and_flips_consistently():
+    """SegData takes frames from each recording in order (``limit`` per recording); a
+    target's boxes are the tight bounds of its masks, also after a horizontal flip."""
+    demo = str(REPO / "tests" / "data" / "synthnocs-demo")
+    one = mr.SegData(demo)
+    two = mr.SegData([demo, demo], limit=2)
+    assert len(one) == 4 and len(two) == 4
+    for i in range(2):
+        a, ta = two.item(i, flip=False)
+        b, tb = two.item(i + 2, flip=False)
+        assert torch_equal(a, b) and all(torch_equal(ta[k], tb[k]) for k in ta)
+    for flip in (False, True):
+        img, t = one.item(0, flip=flip)
+        assert img.shape[0] == 3 and t["masks"].shape[1:] == img.shape[1:]
+        assert len(t["labels"]) >= 1 and int(t["labels"].min()) >= 1 and int(t["labels"].max()) <= 6
+        for box, m in zip(t["boxes"].numpy(), t["masks"].numpy().astype(bool)):
+            ys, xs = np.nonzero(m)
+            assert m.sum() >= mr.MIN_TARGET_PIXELS
+            assert box.tolist() == [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
+    plain, tp = one.item(0, flip=False)
+    flipped, tf = one.item(0, flip=True)
+    assert torch_equal(plain.flip(-1), flipped) and torch_equal(tp["masks"].flip(-1), tf["masks"])
+
+
+def torch_equal(a, b) -> bool:
+    import torch
+
+    return bool(torch.equal(a, b))
+
+
+def test_training_resumes_where_it_stopped(tmp_path):
+    """Two steps on two recordings, then a resume to three continues from the checkpoint."""
+    import argparse
+
+    demo = str(REPO / "tests" / "data" / "synthnocs-demo")
+    args = argparse.Namespace(data=[demo, demo], out=str(tmp_path), steps=2, batch=1, lr=1e-4, warmup=1,
+                              threads=1, limit=2, seed=0, ckpt_every=1, min_size=160, max_size=224,
+                              init=None, freeze_bn=False)
+    mr.train(args)
+    import torch
+
+    assert torch.load(tmp_path / "last.pt", map_location="cpu")["step"] == 2
+    mr.train(argparse.Namespace(**{**vars(args), "steps": 3}))
+    log = (tmp_path / "train.log").read_text()
+    assert "4 frames indexed" in log and "resumed at step 2" in log and "step 3/3" in log
+    assert torch.load(tmp_path / "last.pt", map_location="cpu")["step"] == 3

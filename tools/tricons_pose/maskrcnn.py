@@ -136,47 +136,59 @@ def build_r50(seed: int = 0):
 
 
 class SegData:
-    """A recording's frames as training targets, held in memory (uint8)."""
+    """The annotated frames of one or more recordings as training targets, read from disk
+    when asked for (a frame's PNGs decode in milliseconds, next to seconds per training step;
+    ten thousand frames held decoded would take 9 GB)."""
 
-    def __init__(self, root: str, limit: int | None = None):
-        from PIL import Image
-
-        rec = Recording(root)
-        n = len(rec) if limit is None else min(limit, len(rec))
-        self.images, self.targets = [], []
-        for i in range(n):
-            ann = rec.annotations(i)
-            if ann is None or ann.mask is None:
-                continue
-            img = np.asarray(Image.open(rec.root / rec.frames[i].color).convert("RGB"))
-            ids = np.asarray(Image.open(rec.root / ann.mask))
-            masks, labels, boxes = [], [], []
-            for inst in ann.instances:
-                m = ids == inst.id
-                if m.sum() < MIN_TARGET_PIXELS:
-                    continue
-                ys, xs = np.nonzero(m)
-                boxes.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
-                masks.append(m)
-                labels.append(inst.class_id + 1)
-            self.images.append(img)
-            self.targets.append(
-                (
-                    np.asarray(boxes, np.float32).reshape(-1, 4),
-                    np.asarray(labels, np.int64),
-                    np.packbits(np.asarray(masks, bool).reshape(-1, *img.shape[:2]), axis=-1),
-                )
-            )
+    def __init__(self, roots: str | list[str], limit: int | None = None):
+        """``limit`` caps the frames taken from each recording."""
+        roots = [roots] if isinstance(roots, str) else list(roots)
+        self.frames = []  # (recording, annotations)
+        for root in roots:
+            rec = Recording(root)
+            n = len(rec) if limit is None else min(limit, len(rec))
+            for i in range(n):
+                ann = rec.annotations(i)
+                if ann is not None and ann.mask is not None:
+                    self.frames.append((rec, i, ann))
 
     def __len__(self):
-        return len(self.images)
+        return len(self.frames)
+
+    def image(self, i: int) -> np.ndarray:
+        """Frame ``i``'s colour image, HxWx3 uint8."""
+        from PIL import Image
+
+        rec, k, _ = self.frames[i]
+        return np.asarray(Image.open(rec.root / rec.frames[k].color).convert("RGB"))
+
+    def target(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Frame ``i``'s instances of at least MIN_TARGET_PIXELS pixels: boxes (N, 4) xyxy
+        float32, labels (N,) int64 (class id + 1), masks (N, H, W) bool."""
+        from PIL import Image
+
+        rec, _, ann = self.frames[i]
+        ids = np.asarray(Image.open(rec.root / ann.mask))
+        masks, labels, boxes = [], [], []
+        for inst in ann.instances:
+            m = ids == inst.id
+            if m.sum() < MIN_TARGET_PIXELS:
+                continue
+            ys, xs = np.nonzero(m)
+            boxes.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+            masks.append(m)
+            labels.append(inst.class_id + 1)
+        return (
+            np.asarray(boxes, np.float32).reshape(-1, 4),
+            np.asarray(labels, np.int64),
+            np.asarray(masks, bool).reshape(-1, *ids.shape[:2]),
+        )
 
     def item(self, i: int, flip: bool):
-        img = torch.from_numpy(self.images[i].copy()).permute(2, 0, 1).float() / 255.0
-        boxes, labels, packed = self.targets[i]
+        img = torch.from_numpy(self.image(i).copy()).permute(2, 0, 1).float() / 255.0
+        boxes, labels, masks = self.target(i)
         w = img.shape[2]
-        masks = np.unpackbits(packed, axis=-1, count=w).astype(np.uint8)
-        boxes = boxes.copy()
+        masks = masks.astype(np.uint8)
         if flip:
             img = img.flip(-1)
             masks = masks[..., ::-1].copy()
@@ -196,7 +208,7 @@ def train(args):
     log = open(out / "train.log", "a", buffering=1)
     t0 = time.time()
     data = SegData(args.data, args.limit)
-    print(f"{len(data)} frames loaded in {time.time() - t0:.0f} s", file=log)
+    print(f"{len(data)} frames indexed in {time.time() - t0:.0f} s", file=log)
     model = build_light(args.min_size, args.max_size)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=args.lr, weight_decay=1e-4)
@@ -245,7 +257,7 @@ def train(args):
         step += 1
         vals = {k: float(v.detach()) for k, v in losses.items()}
         smooth = vals if smooth is None else {k: 0.95 * smooth[k] + 0.05 * vals[k] for k in vals}
-        if step % 20 == 0 or step == 1:
+        if step % 20 == 0 or step == 1 or step == args.steps:
             parts = " ".join(f"{k.replace('loss_', '')}={v:.3f}" for k, v in smooth.items())
             print(f"step {step}/{args.steps} lr={lr_at(step):.2e} {parts} {time.time() - t0:.0f}s", file=log)
         if step % args.ckpt_every == 0 or step == args.steps:
@@ -614,11 +626,10 @@ def evaluate_cmd(args):
     frames = []
     t0 = time.time()
     for i in range(len(data)):
-        img = data.images[i]
+        img = data.image(i)
         x = (img.astype(np.float32) / 255.0).transpose(2, 0, 1).copy()
         b, lab, s, m = sess.run(None, {"image": x})
-        gb, gl, packed = data.targets[i]
-        gm = np.unpackbits(packed, axis=-1, count=img.shape[1]).astype(bool)
+        gb, gl, gm = data.target(i)
         frames.append((b, lab, s, m[:, 0] >= 0.5, gb, gl, gm))
     ap = average_precision(frames)
     res = {
@@ -760,7 +771,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m tricons_pose.maskrcnn", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     t = sub.add_parser("train", help="train the light Mask R-CNN (resumes from OUT/last.pt)")
-    t.add_argument("--data", required=True)
+    t.add_argument("--data", required=True, nargs="+", help="one or more recordings, drawn from uniformly by frame")
     t.add_argument("--out", required=True)
     t.add_argument("--steps", type=int, default=6000)
     t.add_argument("--batch", type=int, default=4)
