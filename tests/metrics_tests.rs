@@ -345,12 +345,70 @@ fn classes_without_ground_truth_are_null_and_left_out_of_the_mean() {
         let mug_row = table.lines().find(|l| l.starts_with("mug")).unwrap_or_default();
         assert_eq!(
             mug_row.split_whitespace().collect::<Vec<_>>(),
-            ["mug", "0", "1", "-", "-", "-", "-", "-", "-", "-"]
+            ["mug", "0", "1", "-", "-", "-", "-", "-", "-", "-", "-", "-"]
         );
         let mean_row = table.lines().find(|l| l.starts_with("mean")).unwrap_or_default();
         assert_eq!(mean_row.split_whitespace().filter(|v| *v == "50.0").count(), 7, "{table}");
         assert!(table.contains("5°2cm") && table.contains("IoU75"), "{table}");
     }
+}
+
+#[test]
+fn median_errors_are_those_of_the_objects_matched_at_the_gate() {
+    // Cameras 7° and 1° off (and 3 cm / 1 cm), a third camera missed; the median of two is their mean.
+    let size = size_of(Category::Camera);
+    let cams: Vec<GtInstance> =
+        (0..3).map(|k| gt(Category::Camera, pose_at(-0.3 + 0.3 * k as f64, 0.0, 0.2 * k as f64), size, true)).collect();
+    let off = |g: &GtInstance, deg: f64, shift_m: f64, score: f64| {
+        let r = rotation_axis_angle(&Vec3::new(0.2, 0.9, -0.4), deg.to_radians()) * g.camera_from_object.rotation;
+        pred(
+            Category::Camera,
+            score,
+            Pose::new(r, g.camera_from_object.translation_m + Vec3::new(shift_m, 0.0, 0.0)),
+            size,
+        )
+    };
+    // A mug with its handle hidden, turned 40° about its axis: symmetric, so 0°; a lower-scoring
+    // duplicate 30° off does not count (the object was taken by the first).
+    let mug = gt(Category::Mug, pose_at(0.0, 0.3, 0.5), size_of(Category::Mug), false);
+    let mug_pred = {
+        let mut p = pred_of(&mug, 0.9);
+        p.camera_from_object.rotation *= rotation_y(40f64.to_radians());
+        p
+    };
+    let mug_dup = off(&mug, 30.0, 0.0, 0.5);
+    let mug_dup = PredInstance { class: Category::Mug, size_m: mug.size_m, ..mug_dup };
+    // A laptop whose prediction is far away: no pair passes the gate.
+    let laptop = gt(Category::Laptop, pose_at(0.4, 0.4, 0.0), size_of(Category::Laptop), true);
+    let far = pred(Category::Laptop, 0.9, pose_at(-2.0, 2.0, 0.0), size_of(Category::Laptop));
+    let gts = vec![cams[0].clone(), cams[1].clone(), cams[2].clone(), mug.clone(), laptop];
+    let preds = vec![off(&cams[0], 7.0, 0.03, 0.8), off(&cams[1], 1.0, 0.01, 0.7), mug_pred, mug_dup, far];
+    for mode in MODES {
+        let report = one_frame(&gts, &preds, &EvalConfig::standard(mode));
+        let cam = &report.classes[2];
+        assert_eq!(cam.num_gt_pose, 2, "{mode}");
+        let (deg, cm) = (cam.median_rotation_deg.unwrap_or(f64::NAN), cam.median_translation_cm.unwrap_or(f64::NAN));
+        assert!((deg - 4.0).abs() < 1e-9 && (cm - 2.0).abs() < 1e-9, "{mode}: {deg} {cm}");
+        let mug_row = &report.classes[5];
+        assert!(mug_row.median_rotation_deg.is_some_and(|d| d < 1e-6), "{mode}: {:?}", mug_row.median_rotation_deg);
+        assert!(mug_row.median_translation_cm.is_some_and(|c| c < 1e-9));
+        assert_eq!((report.classes[4].median_rotation_deg, report.classes[4].median_translation_cm), (None, None));
+        assert_eq!(report.classes[0].median_rotation_deg, None, "no bottles");
+        let json = serde_json::to_value(&report).unwrap();
+        assert!((json["classes"][2]["median_rotation_deg"].as_f64().unwrap_or(f64::NAN) - 4.0).abs() < 1e-9);
+        assert!(json["classes"][4]["median_translation_cm"].is_null());
+        let table = report.to_table();
+        let cam_row: Vec<&str> =
+            table.lines().find(|l| l.starts_with("camera")).unwrap_or_default().split_whitespace().collect();
+        assert_eq!(cam_row[cam_row.len() - 2..], ["4.0", "2.0"], "{table}");
+    }
+    // An odd count takes the middle value.
+    let report = one_frame(
+        &cams,
+        &[off(&cams[0], 7.0, 0.0, 0.8), off(&cams[1], 1.0, 0.0, 0.7), off(&cams[2], 3.0, 0.0, 0.6)],
+        &EvalConfig::default(),
+    );
+    assert!(report.classes[2].median_rotation_deg.is_some_and(|d| (d - 3.0).abs() < 1e-9));
 }
 
 #[test]

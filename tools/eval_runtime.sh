@@ -46,7 +46,7 @@ done
             --metrics IoU50,IoU75,5deg2cm,10deg5cm)
         echo
         (cd tools && .venv/bin/python -m tricons_pose.report --per-class "$files" \
-            --metrics IoU50,IoU75,5deg2cm,10deg5cm)
+            --metrics IoU50,IoU75,5deg2cm,10deg5cm,median_rotation_deg)
     done
 } >"$out/summary.md"
 cat "$out/summary.md"

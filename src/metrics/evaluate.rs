@@ -34,6 +34,9 @@ struct ClassAccumulator {
     iou: Vec<Ranked>,
     /// Per pose threshold.
     pose: Vec<Ranked>,
+    /// (degrees, cm) of each ground-truth object matched at the pose gate, against the
+    /// prediction that took it there.
+    gate_errors: Vec<(f64, f64)>,
 }
 
 impl ClassAccumulator {
@@ -45,6 +48,7 @@ impl ClassAccumulator {
             num_pred_pose: 0,
             iou: vec![Vec::new(); cfg.iou_thresholds.len()],
             pose: vec![Vec::new(); cfg.pose_thresholds.len()],
+            gate_errors: Vec::new(),
         }
     }
 
@@ -95,6 +99,11 @@ impl ClassAccumulator {
             .collect();
         self.num_gt_pose += pose_gts.len();
         self.num_pred_pose += pose_preds.len();
+        for ((g, &sym), p) in gts.iter().zip(&symmetric).zip(&gate.gt_to_pred) {
+            if let Some(p) = p {
+                self.gate_errors.push(pose_error(&preds[*p].camera_from_object, &g.camera_from_object, sym));
+            }
+        }
         let errors: Vec<Vec<(f64, f64)>> = pose_preds
             .iter()
             .map(|p| {
@@ -114,15 +123,29 @@ impl ClassAccumulator {
         // candidates at all: AP 0, as the reference computes it.
         let pose_aps = self.pose.iter().map(|r| has_gt.then(|| voc_ap(r, self.num_gt_pose).unwrap_or(0.0)));
         let values = iou_aps.chain(pose_aps).map(|ap| ap.map(|v| v * PERCENT));
+        let degrees: Vec<f64> = self.gate_errors.iter().map(|e| e.0).collect();
+        let cm: Vec<f64> = self.gate_errors.iter().map(|e| e.1).collect();
         ClassResult {
             class,
             num_gt: self.num_gt,
             num_pred: self.num_pred,
             num_gt_pose: self.num_gt_pose,
             num_pred_pose: self.num_pred_pose,
+            median_rotation_deg: median(degrees),
+            median_translation_cm: median(cm),
             ap: MetricValues(cfg.metric_names().into_iter().zip(values).collect()),
         }
     }
+}
+
+/// The median of `values` (the mean of the middle two for an even count); `None` when empty.
+fn median(mut values: Vec<f64>) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    Some(if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) })
 }
 
 /// Evaluates frames of (ground truth, predictions) with the NOCS protocol
@@ -133,7 +156,9 @@ impl ClassAccumulator {
 /// metrics use only the pairs matched at IoU > [`POSE_IOU_GATE`], matched by
 /// degrees + cm within each threshold (inclusive). AP is VOC all-point over
 /// all frames. A class without ground truth has no AP (`None`) and is left out
-/// of the mean. Thresholds are not checked here: call
+/// of the mean. Each class also gets the median rotation and translation error
+/// of its ground-truth objects matched at the gate (against the prediction
+/// that took each one there, the protocol's symmetry rules applied). Thresholds are not checked here: call
 /// [`EvalConfig::validate`] on user input.
 pub fn evaluate<'a>(
     frames: impl IntoIterator<Item = (&'a [GtInstance], &'a [PredInstance])>,

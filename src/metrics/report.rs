@@ -47,6 +47,13 @@ pub struct ClassResult {
     pub num_gt_pose: usize,
     /// Predictions matched at IoU > 0.10: the only ones the pose metrics rank.
     pub num_pred_pose: usize,
+    /// Median rotation error in degrees of the ground-truth objects matched at
+    /// IoU > 0.10, each against the prediction that took it (the highest-scoring
+    /// one); bottle, bowl, can and mugs with a hidden handle by the angle of their
+    /// y axes. `None` when no object passed the gate.
+    pub median_rotation_deg: Option<f64>,
+    /// Median translation error in centimetres over the same pairs.
+    pub median_translation_cm: Option<f64>,
     /// AP in percent per metric; `None` (JSON `null`) when the class has no
     /// ground truth.
     pub ap: MetricValues,
@@ -123,6 +130,7 @@ impl EvalReport {
         for (label, w) in labels.iter().zip(&widths) {
             let _ = write!(out, "{label:>w$}");
         }
+        let _ = write!(out, "{:>METRIC_COLUMN$}{:>METRIC_COLUMN$}", "med°", "med cm");
         out.push('\n');
         for c in &self.classes {
             let _ = write!(
@@ -135,6 +143,12 @@ impl EvalReport {
             for ((_, v), w) in c.ap.iter().zip(&widths) {
                 let _ = write!(out, "{:>w$}", cell(v));
             }
+            let _ = write!(
+                out,
+                "{:>METRIC_COLUMN$}{:>METRIC_COLUMN$}",
+                cell(c.median_rotation_deg),
+                cell(c.median_translation_cm)
+            );
             out.push('\n');
         }
         let _ = write!(out, "{:<CLASS_COLUMN$}{:>COUNT_COLUMN$}{:>COUNT_COLUMN$}", "mean", "", "");
@@ -143,6 +157,7 @@ impl EvalReport {
         }
         out.push('\n');
         out.push_str("- : no ground truth for the class (left out of the mean); pose metrics rank only pairs matched at IoU > 0.1\n");
+        out.push_str("med°, med cm: median rotation / translation error of the objects matched at IoU > 0.1\n");
         out
     }
 }

@@ -30,3 +30,13 @@ def test_several_reports_give_mean_and_range(tmp_path):
     assert pc[2] == "| bottle | 25.0 (10.0-40.0) | - |" and pc[3] == "| mean | 71.5 (70.0-73.0) | - |"
     # one path: the report itself, cells without a range
     assert R._load(str(paths[0]))["mean"]["IoU50"] == 70.0
+
+
+def test_per_class_median_errors_come_from_the_class_fields():
+    reps = [{"mean": {"IoU50": 70.0},
+             "classes": [{"class": "camera", "ap": {"IoU50": 60.0}, "median_rotation_deg": d,
+                          "median_translation_cm": None}]} for d in (6.0, 8.0)]
+    pc = R.per_class(reps, ["IoU50", "median_rotation_deg", "median_translation_cm"]).splitlines()
+    assert pc[0] == "| class | IoU50 | median rot. (°) | median transl. (cm) |"
+    assert pc[2] == "| camera | 60.0 (60.0-60.0) | 7.0 (6.0-8.0) | - |"
+    assert pc[3] == "| mean | 70.0 (70.0-70.0) | - | - |"

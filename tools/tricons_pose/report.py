@@ -3,6 +3,7 @@
     python -m tricons_pose.report --row "AG-Pose (baseline)=../data/eval/baseline.published.json" \\
         --row "Full=../data/eval/shipped.published.json" --metrics 5deg2cm,5deg5cm,10deg2cm,10deg5cm
     python -m tricons_pose.report --per-class ../data/eval/shipped.published.json
+    python -m tricons_pose.report --per-class s0.eval.json --metrics 5deg2cm,median_rotation_deg
 
 A row or ``--per-class`` given several reports (comma-separated: the same model under
 several sampling seeds) shows each cell as the mean and, in brackets, the lowest and
@@ -19,7 +20,10 @@ from pathlib import Path
 
 ALL_METRICS = ("IoU25", "IoU50", "IoU75", "5deg2cm", "5deg5cm", "10deg2cm", "10deg5cm")
 HEADER = {"IoU25": "IoU25", "IoU50": "IoU50", "IoU75": "IoU75", "5deg2cm": "5°2cm", "5deg5cm": "5°5cm",
-          "10deg2cm": "10°2cm", "10deg5cm": "10°5cm"}
+          "10deg2cm": "10°2cm", "10deg5cm": "10°5cm",
+          "median_rotation_deg": "median rot. (°)", "median_translation_cm": "median transl. (cm)"}
+# per-class fields of a report (not APs) that ``--per-class`` can show; they have no mean row
+CLASS_FIELDS = ("median_rotation_deg", "median_translation_cm")
 
 
 def _fmt(v) -> str:
@@ -61,9 +65,11 @@ def per_class(report: dict | list[dict], metrics) -> str:
     reps = _reports(report)
     lines = ["| class | " + " | ".join(HEADER.get(m, m) for m in metrics) + " |", "| --- |" + " --- |" * len(metrics)]
     for k, c in enumerate(reps[0]["classes"]):
-        vals = [_cell([rep["classes"][k]["ap"].get(m) for rep in reps])[1] for m in metrics]
+        vals = [_cell([rep["classes"][k].get(m) if m in CLASS_FIELDS else rep["classes"][k]["ap"].get(m)
+                       for rep in reps])[1] for m in metrics]
         lines.append(f"| {c['class']} | " + " | ".join(vals) + " |")
-    lines.append("| mean | " + " | ".join(_cell([rep["mean"].get(m) for rep in reps])[1] for m in metrics) + " |")
+    lines.append("| mean | " + " | ".join("-" if m in CLASS_FIELDS else _cell([rep["mean"].get(m) for rep in reps])[1]
+                                         for m in metrics) + " |")
     return "\n".join(lines)
 
 
