@@ -113,7 +113,7 @@ fn next_message(
 fn mcap_error(path: &Path, read: usize, e: mcap::McapError) -> Error {
     let message = match e {
         mcap::McapError::UnexpectedEof => format!(
-            "the bag is truncated: it ends inside a record after {read} whole messages \
+            "the MCAP bag is truncated: it ends inside a record after {read} whole messages \
              (an interrupted recording; `mcap recover` rewrites what is readable)"
         ),
         mcap::McapError::BadMagic => "not an MCAP file (bad magic; a rosbag2 .db3 bag is SQLite, \
