@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from tricons_pose.config import ModelConfig
-from tricons_pose.losses import (chamfer, compute_losses, cvc_loss, diversity_loss,
+from tricons_pose.losses import (_dist, chamfer, compute_losses, cvc_loss, diversity_loss,
                                  keypoint_surface_loss, nocs_target_from_heatmap,
                                  nocs_target_from_pose, normalised_distance_matrix,
                                  pose_loss, smooth_l1_dis)
@@ -102,6 +102,24 @@ def test_chamfer_and_surface_loss():
     assert chamfer(a, a).item() < 1e-5
     assert keypoint_surface_loss(a, a).item() < 1e-5
     assert chamfer(a, a + 0.01).item() > 0.0
+
+
+def test_pairwise_distance_matches_broadcast_differences_and_their_gradient():
+    """_dist (torch.cdist, difference mode) against the (B, n, m, 3) broadcast it
+    replaced, in value and in the gradient of a Chamfer-like loss, float32."""
+    g = torch.Generator().manual_seed(3)
+    a0 = torch.randn(2, 40, 3, generator=g) * 0.1
+    b0 = torch.cat([a0[:, :5], torch.randn(2, 20, 3, generator=g) * 0.1], dim=1)  # exact zeros too
+    grads = []
+    for f in (_dist, lambda a, b: ((a.unsqueeze(2) - b.unsqueeze(1)) ** 2).sum(-1).clamp(min=1e-12).sqrt()):
+        a, b = a0.clone().requires_grad_(), b0.clone().requires_grad_()
+        d = f(a, b)
+        (d.amin(2).mean() + d.amin(1).mean() + 0.01 * d.mean()).backward()
+        grads.append((d.detach(), a.grad, b.grad))
+    for x, y in zip(grads[0], grads[1]):
+        assert torch.isfinite(x).all()
+        assert torch.allclose(x, y, atol=1e-6, rtol=1e-5)
+    assert (grads[0][0][:, :5, :5].diagonal(dim1=1, dim2=2) == 0).all()
 
 
 def test_nocs_targets_agree_for_exact_points():

@@ -156,6 +156,27 @@ def test_small_cnn_keeps_resolution():
     assert net(torch.randn(2, 3, 32, 32)).shape == (2, 24, 32, 32)
 
 
+def test_small_cnn_gathered_head_equals_gathering_the_whole_map():
+    """Training's gather-then-1x1-conv against the exported conv-then-gather: the same
+    features and the same gradients for every parameter (train mode, batch statistics)."""
+    torch.manual_seed(4)
+    net = SmallCNN(24, (8, 16, 32)).train()
+    x = torch.randn(3, 3, 32, 32)
+    choose = torch.randint(0, 32 * 32, (3, 50))
+    choose[:, 1] = choose[:, 0]  # a pixel chosen twice
+    outs, grads = [], []
+    for f in (lambda: net.forward_gathered(x, choose), lambda: gather_pixel_features(net(x), choose)):
+        net.zero_grad()
+        y = f()
+        (y * torch.linspace(-1, 1, y.numel()).reshape(y.shape)).sum().backward()
+        outs.append(y.detach())
+        grads.append([p.grad.clone() for p in net.parameters()])
+    assert outs[0].shape == (3, 24, 50)
+    assert torch.allclose(outs[0], outs[1], atol=1e-5, rtol=1e-5)
+    for g0, g1 in zip(*grads):
+        assert torch.allclose(g0, g1, atol=1e-4, rtol=1e-4)
+
+
 def test_dinov2_weights_load_by_official_names_and_freeze(tmp_path):
     kw = dict(patch=14, dim=48, depth=2, heads=2, mlp_ratio=2.0, pos_grid=5)
     torch.manual_seed(0)

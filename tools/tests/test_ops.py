@@ -147,6 +147,18 @@ def test_three_nn_ties_lower_index():
     np.testing.assert_array_equal(i.numpy(), ref.three_nn(unknown.numpy(), known.numpy())[1])
 
 
+def test_three_nn_with_duplicated_points_matches_reference():
+    # sampling with replacement duplicates points: some queries tie across the cut
+    # (their rows take the full sort), the others not (topk); both against the reference
+    base = _rand(3, 40, 3, seed=21)
+    known = torch.cat([base, base[:, :25]], dim=1)
+    unknown = torch.cat([known[:, ::3], _rand(3, 30, 3, seed=22)], dim=1)
+    d, i = ops.three_nn(unknown, known)
+    rd, ri = ref.three_nn(unknown.numpy(), known.numpy())
+    np.testing.assert_array_equal(i.numpy(), ri)
+    np.testing.assert_allclose(d.numpy(), rd, atol=1e-6, rtol=0)
+
+
 @pytest.mark.parametrize("B,N,S", SIZES)
 def test_three_interpolate_matches_reference(B, N, S):
     f = _rand(B, 6, N, seed=8) - 0.5

@@ -182,6 +182,18 @@ def test_keep_cycle_ends_saves_the_low_rate_weights(recording, tmp_path):
     assert kept["step"] == 4 and kept["config"]["name"] == "test"
 
 
+@pytest.mark.parametrize("mode", ["triangular2", "triangular"])
+def test_lr_mode_sets_the_height_of_later_cycles(recording, tmp_path, mode):
+    """Half-cycle 2 steps from 1e-3 to 1e-2: the second cycle's peak (step 7) is half the
+    first's (step 3) rise with triangular2 and the same with triangular; a resume keeps it."""
+    out = tmp_path / mode
+    _run(_args(recording, out, "--max-steps", "5", "--lr-mode", mode))
+    _run(_args(recording, out, "--max-steps", "8", "--lr-mode", mode, "--resume"))
+    lr = {r["step"]: r["lr"] for r in _log(out)}
+    assert lr[3] == pytest.approx(1e-2)
+    assert lr[7] == pytest.approx(1e-2 if mode == "triangular" else 1e-3 + 0.5 * (1e-2 - 1e-3))
+
+
 def test_mixed_batches_take_each_sets_share_in_its_own_order():
     """--real: every batch has per_a instances of set A then per_b of set B; each set is walked
     in its own seeded permutation with wrap-around; a resume start skips exactly that many."""

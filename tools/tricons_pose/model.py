@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import ModelConfig
-from .image_encoder import build_image_encoder, gather_pixel_features
+from .image_encoder import SmallCNN, build_image_encoder, gather_pixel_features
 from .ops import group_points, triangle_descriptor
 from .pointnet2 import PointNet2MSG
 from .rotation import rotation_matrix_from_6d
@@ -435,8 +435,15 @@ class TriConsPose(nn.Module):
 
     # ------------------------------------------------------------------ pieces
     def encode_image(self, rgb: Tensor, choose: Tensor) -> Tensor:
-        """(B, 3, crop, crop), (B, N) -> per-point image features (B, N, C_im)."""
-        return gather_pixel_features(self.image_encoder(rgb), choose).transpose(1, 2)
+        """(B, 3, crop, crop), (B, N) -> per-point image features (B, N, C_im).
+
+        In training the CNN's last 1x1 conv runs on the chosen pixels only
+        (:meth:`SmallCNN.forward_gathered`, same values); evaluation and export run it on
+        the whole map, the graph the runtime expects."""
+        enc = self.image_encoder
+        if self.training and isinstance(enc, SmallCNN):
+            return enc.forward_gathered(rgb, choose).transpose(1, 2)
+        return gather_pixel_features(enc(rgb), choose).transpose(1, 2)
 
     def detect(self, P: Tensor, f_im: Tensor) -> Tuple[Tensor, Tensor, Tensor, Tensor]:
         """Centred/augmented points P (B, N, 3) + image feats (B, N, C_im) ->

@@ -78,21 +78,28 @@ def _sqnorm_rows(x: Tensor, y: Tensor) -> Tensor:
 def _knn_sorted(query: Tensor, points: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """k nearest points of each query: (sqdist, idx), ascending, ties -> lower index.
 
-    Fast path: ``topk``; it is exact whenever exactly k distances are <= the
-    k-th smallest (no tie across the cut), and the k picks are then re-ordered
-    by (distance, index). Otherwise (a tie across the cut, NaN) a full stable sort.
+    Fast path: ``topk``; it is exact for a query whenever exactly k distances are
+    <= its k-th smallest (no tie across the cut), and the k picks are then re-ordered
+    by (distance, index). The queries where that fails (a tie across the cut, which
+    duplicated sample points make common, or NaN) get a full stable sort of their row
+    only.
     """
     d2 = _pairwise_sqdist(query, points)
     n = d2.shape[-1]
-    if k < n:
-        vals, idx = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
-        if bool(((d2 <= vals[..., -1:]).sum(-1) == k).all()):
-            idx, perm = torch.sort(idx, dim=-1)
-            vals = torch.gather(vals, -1, perm)
-            vals, order = torch.sort(vals, dim=-1, stable=True)
-            return vals, torch.gather(idx, -1, order)
-    vals, idx = torch.sort(d2, dim=-1, stable=True)
-    return vals[..., :k].contiguous(), idx[..., :k].contiguous()
+    if k >= n:
+        vals, idx = torch.sort(d2, dim=-1, stable=True)
+        return vals[..., :k].contiguous(), idx[..., :k].contiguous()
+    vals, idx = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
+    bad = (d2 <= vals[..., -1:]).sum(-1) != k
+    idx, perm = torch.sort(idx, dim=-1)
+    vals = torch.gather(vals, -1, perm)
+    vals, order = torch.sort(vals, dim=-1, stable=True)
+    idx = torch.gather(idx, -1, order)
+    if bool(bad.any()):
+        v_bad, i_bad = torch.sort(d2[bad], dim=-1, stable=True)
+        vals[bad] = v_bad[:, :k]
+        idx[bad] = i_bad[:, :k]
+    return vals, idx
 
 
 def _gather_cols(features: Tensor, idx: Tensor) -> Tensor:

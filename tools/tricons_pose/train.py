@@ -6,7 +6,8 @@
 Adam (lr 1e-4 = the paper's initial rate) with a triangular2 cyclic schedule
 (torch CyclicLR: from ``--lr`` up to ``--max-lr`` and back in 2 x
 ``--cycle-steps`` optimiser steps, the amplitude halving every cycle; default
-half-cycle: 2 epochs). Writes to RUN_DIR:
+half-cycle: 2 epochs); ``--lr-mode triangular`` keeps every cycle at full height (the
+cycles that trained the shipped model, tools/MODEL.md E7-E13). Writes to RUN_DIR:
 
 - ``config.json``: model configuration and training arguments;
 - ``log.jsonl``: one JSON line per step (step, epoch, lr, every loss term,
@@ -188,7 +189,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=0, help="torch.set_num_threads (0: all cores)")
     p.add_argument("--workers", type=int, default=1, help="DataLoader worker processes (0: load in the main process)")
     p.add_argument("--lr", type=float, default=1e-4, help="initial = lowest learning rate of the cycle")
-    p.add_argument("--max-lr", type=float, default=1e-3, help="peak of the first cycle (triangular2 halves it per cycle)")
+    p.add_argument("--max-lr", type=float, default=1e-3,
+                   help="peak of the first cycle (triangular2 halves it per cycle, triangular keeps it)")
+    p.add_argument("--lr-mode", choices=("triangular2", "triangular"), default="triangular2",
+                   help="CyclicLR mode: triangular2 halves the peak every cycle, triangular repeats it")
     p.add_argument("--cycle-steps", type=int, default=0, help="half-cycle length in steps (0: 2 epochs)")
     p.add_argument("--log-every", type=int, default=10, help="stdout line every N steps")
     p.add_argument("--ckpt-every", type=int, default=200, help="checkpoint every K steps (and at epoch ends)")
@@ -327,7 +331,7 @@ def train(
         print(f"DINOv2 weights: {info['tensors']} tensors from {dinov2}; the ViT is frozen", flush=True)
     opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=args.lr)
     sched = torch.optim.lr_scheduler.CyclicLR(opt, base_lr=args.lr, max_lr=args.max_lr, step_size_up=cycle,
-                                              mode="triangular2", cycle_momentum=False)
+                                              mode=getattr(args, "lr_mode", "triangular2"), cycle_momentum=False)
     epoch, step_in_epoch, step = 0, 0, 0
     ckpt_path = out / CKPT_FILE
     if args.resume:

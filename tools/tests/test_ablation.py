@@ -1,0 +1,67 @@
+"""Tests of tricons_pose.ablation: the cycle chain's commands, the table, collect/restore."""
+import gzip
+import json
+
+from tricons_pose import ablation as A
+
+
+def _report(path, value):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"mean": {m: value for m in A.ALL_METRICS}}))
+
+
+def test_cycles_chain_weights_and_resume_in_place(tmp_path):
+    runs = tmp_path / "runs"
+    first = A.train_command(runs, ["d"], "c", "baseline", 2, 1)
+    assert "--init-from" not in first and "--resume" not in first
+    assert first[first.index("--seed") + 1] == "201" and first[first.index("--config") + 1] == "baseline"
+    assert first[first.index("--lr-mode") + 1] == "triangular"
+    second = A.train_command(runs, ["d"], "c", "baseline", 2, 2)
+    assert second[second.index("--init-from") + 1] == str(runs / "baseline-s2" / "cycle1" / A.END)
+    (runs / "baseline-s2" / "cycle2").mkdir(parents=True)
+    (runs / "baseline-s2" / "cycle2" / "checkpoint.pt").write_bytes(b"x")
+    again = A.train_command(runs, ["d"], "c", "baseline", 2, 2)
+    assert "--resume" in again and "--init-from" not in again
+
+
+def test_table_is_the_mean_over_training_seeds_of_each_seeds_sampling_mean(tmp_path):
+    runs = tmp_path / "runs"
+    for k, (variant, _) in enumerate(A.VARIANTS):
+        for seed in A.SEEDS:
+            for s in range(3):
+                # seed 1: 10k + 0/1/2 (mean 10k + 1); seed 2: 10k + 3/4/5 (mean 10k + 4)
+                _report(A.run_dir(runs, variant, seed, 1) / "eval-val" / f"gt-seed{s}.eval.json",
+                        10 * k + 3 * (seed - 1) + s)
+    t = A.ablation_table(runs, 1, "val")
+    lines = t.splitlines()
+    assert lines[0].startswith("| Method | 5°2cm")
+    assert lines[2] == "| AG-Pose (Baseline) | " + " | ".join(["2.5 (1.0-4.0)"] * 6) + " |"
+    assert lines[5].startswith("| Full | **32.5 (31.0-34.0)**")
+    assert A.ablation_table(runs, 2, "val") is None  # cycle 2 not evaluated
+
+
+def test_collect_keeps_the_adam_state_only_of_unfinished_cycles_and_restore_reverses_it(tmp_path):
+    runs, dest = tmp_path / "runs", tmp_path / "dest"
+    done, going = A.run_dir(runs, "shipped", 1, 1), A.run_dir(runs, "shipped", 1, 2)
+    for d in (done, going):
+        d.mkdir(parents=True)
+        (d / "checkpoint.pt").write_bytes(b"adam")
+        (d / "config.json").write_text("{}")
+        (d / "log.jsonl").write_text('{"step": 1}\n')
+    (done / A.END).write_bytes(b"weights")
+    _report(done / "eval-val" / "gt-seed0.eval.json", 1.0)
+
+    class Args:
+        pass
+    args = Args()
+    args.runs, args.dest = str(runs), str(dest)
+    A.collect(args)
+    c_done, c_going = dest / "shipped-s1" / "cycle1", dest / "shipped-s1" / "cycle2"
+    assert (c_done / A.END).exists() and not (c_done / "checkpoint.pt").exists()
+    assert (c_going / "checkpoint.pt").read_bytes() == b"adam" and not (c_going / A.END).exists()
+    assert gzip.open(c_done / "log.jsonl.gz").read() == b'{"step": 1}\n'
+    assert (c_done / "eval-val" / "gt-seed0.eval.json").exists()
+    args.runs = str(tmp_path / "fresh")
+    A.restore(args)
+    back = A.run_dir(tmp_path / "fresh", "shipped", 1, 2)
+    assert (back / "checkpoint.pt").read_bytes() == b"adam" and (back / "log.jsonl").read_text() == '{"step": 1}\n'

@@ -1,0 +1,205 @@
+"""The paper's ablation at the shipped sizes, trained the way the shipped model was (issue 16,
+part 5; tools/MODEL.md, "The ablation")::
+
+    # from tools/, on one core; resumable: run it again after an interruption
+    taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4
+    .venv/bin/python -m tricons_pose.ablation eval       # tools/eval_runtime.sh on every new cycle end
+    .venv/bin/python -m tricons_pose.ablation table      # the paper's layout, mean (lo-hi) over seeds
+    .venv/bin/python -m tricons_pose.ablation collect    # copy what a commit needs to models/checkpoints/ablation
+    .venv/bin/python -m tricons_pose.ablation restore    # on a fresh checkout: the reverse
+
+Four variants (AG-Pose baseline, w/o PIGA, w/o SCKD, full = the shipped configuration), two
+training seeds each. Every run is a chain of cycles, each one 3000 steps of the schedule that
+trained the shipped model's last four stages (tools/MODEL.md E7-E13): Adam from a fresh state,
+triangular 5e-5..3e-4 over a half-cycle of 1500 steps, batch 16, a fifth of the samples on
+perturbed masks, SynthNOCS train + train2 (8000 frames); cycle 1 starts from random weights,
+cycle c > 1 from cycle c-1's last weights; the data order of cycle c of seed s is seed
+100 s + c. ``advance`` goes round-robin by cycle (every run finishes cycle c before any run
+starts c + 1), so a table at an equal budget exists after every round.
+
+Layout: RUNS/<variant>-s<seed>/cycle<c>/ (a train.py run directory; ``model-step3000.pt`` marks a
+finished cycle, ``eval-val/`` its evaluation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from .report import ALL_METRICS, table
+
+VARIANTS = (("baseline", "AG-Pose (Baseline)"), ("without_piga", "w/o PIGA"),
+            ("without_sckd", "w/o SCKD"), ("shipped", "Full"))
+SEEDS = (1, 2)
+CYCLE_STEPS = 3000
+END = f"model-step{CYCLE_STEPS}.pt"
+TOOLS = Path(__file__).resolve().parents[1]
+ROOT = TOOLS.parent
+PAPER_METRICS = ("5deg2cm", "5deg5cm", "10deg2cm", "10deg5cm", "IoU50", "IoU75")
+
+
+def run_dir(runs: Path, variant: str, seed: int, cycle: int) -> Path:
+    return runs / f"{variant}-s{seed}" / f"cycle{cycle}"
+
+
+def train_command(runs: Path, data: list[str], cache: str, variant: str, seed: int, cycle: int) -> list[str]:
+    """The train.py command of one cycle (resuming it when its checkpoint exists)."""
+    out = run_dir(runs, variant, seed, cycle)
+    cmd = [sys.executable, "-m", "tricons_pose.train", "--data", *data, "--config", variant, "--out", str(out),
+           "--epochs", "100", "--batch-size", "16", "--seed", str(100 * seed + cycle), "--workers", "1",
+           "--threads", "1", "--cache-dir", cache, "--lr", "5e-5", "--max-lr", "3e-4", "--lr-mode", "triangular",
+           "--cycle-steps", str(CYCLE_STEPS // 2), "--keep-cycle-ends", "--max-steps", str(CYCLE_STEPS),
+           "--ckpt-every", "250", "--mask-perturb", "0.2", "--log-every", "100"]
+    if (out / "checkpoint.pt").exists():
+        cmd.append("--resume")
+    elif cycle > 1:
+        cmd += ["--init-from", str(run_dir(runs, variant, seed, cycle - 1) / END)]
+    return cmd
+
+
+def advance(args) -> int:
+    runs = Path(args.runs).resolve()
+    for cycle in range(1, args.cycles + 1):
+        for seed in SEEDS:
+            for variant, _ in VARIANTS:
+                out = run_dir(runs, variant, seed, cycle)
+                if (out / END).exists():
+                    continue
+                if cycle > 1 and not (run_dir(runs, variant, seed, cycle - 1) / END).exists():
+                    raise SystemExit(f"{out}: cycle {cycle - 1} of this run has not finished")
+                out.mkdir(parents=True, exist_ok=True)
+                cmd = train_command(runs, args.data, args.cache_dir, variant, seed, cycle)
+                print(f"[ablation] {variant} seed {seed} cycle {cycle}: {' '.join(cmd[1:])}", flush=True)
+                with open(out / "stdout.log", "a", encoding="utf-8") as log:
+                    rc = subprocess.call(cmd, cwd=TOOLS, stdout=log, stderr=subprocess.STDOUT)
+                if rc != 0:
+                    raise SystemExit(f"{out}: train.py exited with {rc} (see {out / 'stdout.log'})")
+    return 0
+
+
+def finished(runs: Path):
+    """(variant, seed, cycle, dir) of every finished cycle."""
+    for variant, _ in VARIANTS:
+        for seed in SEEDS:
+            cycle = 1
+            while (run_dir(runs, variant, seed, cycle) / END).exists():
+                yield variant, seed, cycle, run_dir(runs, variant, seed, cycle)
+                cycle += 1
+
+
+def evaluate(args) -> int:
+    runs = Path(args.runs).resolve()
+    for variant, seed, cycle, d in finished(runs):
+        out = d / f"eval-{args.split}"
+        if (out / "gt-seed2.eval.json").exists():
+            continue
+        print(f"[ablation] eval {variant} seed {seed} cycle {cycle} on {args.split}", flush=True)
+        rc = subprocess.call(["tools/eval_runtime.sh", str(d / END), str(out), f"data/synthnocs-{args.split}"],
+                             cwd=ROOT, env={**os.environ, "MASKS": "gt", "SEEDS": "0 1 2"})
+        if rc != 0:
+            raise SystemExit(f"{out}: tools/eval_runtime.sh exited with {rc}")
+    return 0
+
+
+def run_mean(eval_dir: Path) -> dict | None:
+    """The mean over the sampling seeds of one run's reports, as a report ({"mean": ...})."""
+    reps = [json.loads(p.read_text(encoding="utf-8")) for p in sorted(eval_dir.glob("gt-seed*.eval.json"))]
+    if not reps:
+        return None
+    return {"mean": {m: sum(r["mean"][m] for r in reps) / len(reps) for m in ALL_METRICS}}
+
+
+def ablation_table(runs: Path, cycle: int, split: str, metrics=PAPER_METRICS) -> str | None:
+    """The paper's layout at one cycle: each cell the mean over the training seeds (each seed
+    the mean of its sampling seeds) and, in brackets, the lowest and highest seed; None unless
+    every run has an evaluation of that cycle."""
+    rows = []
+    for variant, name in VARIANTS:
+        per_seed = [run_mean(run_dir(runs, variant, s, cycle) / f"eval-{split}") for s in SEEDS]
+        if any(r is None for r in per_seed):
+            return None
+        rows.append((name, per_seed))
+    return table(rows, metrics, bold_best=True)
+
+
+def show(args) -> int:
+    runs = Path(args.runs).resolve()
+    shown = False
+    for cycle in range(1, 100):
+        t = ablation_table(runs, cycle, args.split)
+        if t is None:
+            if cycle > 1 and not any(run_dir(runs, v, s, cycle).exists() for v, _ in VARIANTS for s in SEEDS):
+                break
+            continue
+        print(f"\nSynthNOCS-{args.split}, after {cycle} cycle(s) ({cycle * CYCLE_STEPS} steps):\n\n{t}")
+        shown = True
+    if not shown:
+        print("no cycle has an evaluation of every run yet", file=sys.stderr)
+    return 0
+
+
+KEEP = ("config.json", "stdout.log", END, "checkpoint.pt")
+
+
+def collect(args) -> int:
+    """Copy to DEST what resuming and reporting need: per cycle its config, stdout, log
+    (gzip), weights at the end, evaluation; the Adam checkpoint only of unfinished cycles."""
+    runs, dest = Path(args.runs).resolve(), Path(args.dest).resolve()
+    for d in sorted(runs.glob("*-s*/cycle*")):
+        target = dest / d.relative_to(runs)
+        target.mkdir(parents=True, exist_ok=True)
+        done = (d / END).exists()
+        for name in KEEP:
+            if (d / name).exists() and not (name == "checkpoint.pt" and done):
+                shutil.copy2(d / name, target / name)
+        if done and (target / "checkpoint.pt").exists():
+            (target / "checkpoint.pt").unlink()
+        if (d / "log.jsonl").exists():
+            with open(d / "log.jsonl", "rb") as src, gzip.open(target / "log.jsonl.gz", "wb") as dst:
+                shutil.copyfileobj(src, dst)
+        for ev in d.glob("eval-*"):
+            for f in list(ev.glob("*.eval.json")) + list(ev.glob("*.txt")) + list(ev.glob("summary.md")):
+                (target / ev.name).mkdir(exist_ok=True)
+                shutil.copy2(f, target / ev.name / f.name)
+    print(f"collected into {dest}")
+    return 0
+
+
+def restore(args) -> int:
+    """The reverse of collect, for a fresh checkout (never overwrites a newer run directory)."""
+    runs, src = Path(args.runs).resolve(), Path(args.dest).resolve()
+    for d in sorted(src.glob("*-s*/cycle*")):
+        target = runs / d.relative_to(src)
+        if (target / "log.jsonl").exists():
+            continue
+        shutil.copytree(d, target, dirs_exist_ok=True)
+        if (target / "log.jsonl.gz").exists():
+            with gzip.open(target / "log.jsonl.gz", "rb") as s, open(target / "log.jsonl", "wb") as t:
+                shutil.copyfileobj(s, t)
+    print(f"restored into {runs}")
+    return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m tricons_pose.ablation", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("command", choices=("advance", "eval", "table", "collect", "restore"))
+    p.add_argument("--runs", default=str(ROOT / "data/runs/ablation"), help="run directories")
+    p.add_argument("--dest", default=str(ROOT / "models/checkpoints/ablation"), help="collect/restore: committed copy")
+    p.add_argument("--cycles", type=int, default=1, help="advance: every run up to this many cycles")
+    p.add_argument("--data", nargs="+", default=["../data/synthnocs-train", "../data/synthnocs-train2"],
+                   help="advance: training recordings (relative to tools/)")
+    p.add_argument("--cache-dir", default="../data/cache-train", help="advance: preprocessing cache")
+    p.add_argument("--split", default="val", help="eval/table: data/synthnocs-SPLIT")
+    args = p.parse_args(argv)
+    return {"advance": advance, "eval": evaluate, "table": show, "collect": collect, "restore": restore}[args.command](args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
