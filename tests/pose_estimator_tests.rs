@@ -371,9 +371,9 @@ fn early_pixel_gather_keeps_the_int8_outputs() {
     assert_eq!(tricons::pose::rewrite::rewrite(&mut fast).early_gather, 3, "concat, up.2 QConv+Relu, head QConv");
     let out = run_variants(&est, &[&float, &plain, &fast]);
     let max_diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
-    for k in 0..out[0].len() {
-        let quantisation = max_diff(&out[0][k], &out[1][k]);
-        let rewrite = max_diff(&out[1][k], &out[2][k]);
+    for (k, ((float, plain), fast)) in out[0].iter().zip(&out[1]).zip(&out[2]).enumerate() {
+        let quantisation = max_diff(float, plain);
+        let rewrite = max_diff(plain, fast);
         assert!(
             rewrite <= quantisation,
             "output {k}: the early gather moves it by {rewrite}, int8 itself by {quantisation}"

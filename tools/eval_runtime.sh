@@ -10,7 +10,9 @@
 #   RECORDING   default data/synthnocs-val
 # Environment: TRICONS (default target/release/tricons), SEEDS (default "0 1 2"),
 #   MASKS (default "gt model"), ROTATION_FROM_KEYPOINTS (default bowl, as the shipped card),
-#   CONSISTENCY_SCORE_SCALE (default 0.3, as the shipped card; "none" leaves the field out).
+#   CONSISTENCY_SCORE_SCALE (default 0.3, as the shipped card; "none" leaves the field out),
+#   EXPORT_ARGS (more arguments for the export, e.g. --no-check: the onnx reference evaluator's
+#   GatherElements cannot run the relative-coordinate variants' graphs, numpy.choose's 64 limit).
 set -euo pipefail
 [ $# -ge 2 ] || { sed -n 2,14p "$0" >&2; exit 2; }
 ckpt=$1 out=$2 rec=${3:-data/synthnocs-val}
@@ -26,7 +28,7 @@ root=$(pwd)
 out=$(cd "$out" && pwd)
 case $ckpt in /*) ;; *) ckpt=$root/$ckpt ;; esac
 (cd tools && .venv/bin/python -m tricons_pose.export --checkpoint "$ckpt" --out "$out/tricons-pose.onnx" \
-    --rotation-from-keypoints "${ROTATION_FROM_KEYPOINTS:-bowl}" $consistency >"$out/export.log" 2>&1) \
+    --rotation-from-keypoints "${ROTATION_FROM_KEYPOINTS:-bowl}" $consistency ${EXPORT_ARGS:-} >"$out/export.log" 2>&1) \
     || { cat "$out/export.log" >&2; echo "error: export of $ckpt failed" >&2; exit 1; }
 for m in $masks; do
     for s in $seeds; do
