@@ -225,6 +225,17 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def training_dataset(recordings: list, cfg: ModelConfig, seed: int, cache_dir: str | None, color_jitter: bool = True,
+                     mask_perturb: float = 0.0) -> InstanceDataset:
+    """The instances of ``recordings`` with the augmentation training applies to a model of ``cfg``."""
+    n_views = 2 if cfg.use_sckd_loss else 1
+    # view 0 drives the pose supervision in forward_train and is kept isotropic there
+    augment = AugmentConfig(n_views=n_views, isotropic_views=(0,), scale_axes="camera",
+                            color_jitter=color_jitter, mask_perturb=mask_perturb)
+    return InstanceDataset(recordings, n_points=cfg.n_points, crop_size=cfg.crop_size, seed=seed,
+                           augment=augment, cache_dir=cache_dir)
+
+
 def _rng_state() -> dict:
     st = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
     if torch.cuda.is_available():
@@ -299,14 +310,10 @@ def train(
     np.random.seed(args.seed % 2**32)
     torch.manual_seed(args.seed)
 
-    n_views = 2 if cfg.use_sckd_loss else 1
-    # view 0 drives the pose supervision in forward_train and is kept isotropic there
-    augment = AugmentConfig(n_views=n_views, isotropic_views=(0,), scale_axes="camera",
-                            color_jitter=not args.no_color_jitter, mask_perturb=args.mask_perturb)
     recs_a = [rec for r in args.data for rec in open_any(r)]
     recs_b = [rec for r in (getattr(args, "real", None) or []) for rec in open_any(r)]
-    ds = InstanceDataset(recs_a + recs_b, n_points=cfg.n_points, crop_size=cfg.crop_size, seed=args.seed,
-                         augment=augment, cache_dir=args.cache_dir)
+    ds = training_dataset(recs_a + recs_b, cfg, args.seed, args.cache_dir, color_jitter=not args.no_color_jitter,
+                          mask_perturb=args.mask_perturb)
     if recs_b:
         n_a = sum(1 for ref in ds.index if ref.rec < len(recs_a))
         per_b = args.real_per_batch
