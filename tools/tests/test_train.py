@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 import torch
@@ -192,6 +193,20 @@ def test_lr_mode_sets_the_height_of_later_cycles(recording, tmp_path, mode):
     lr = {r["step"]: r["lr"] for r in _log(out)}
     assert lr[3] == pytest.approx(1e-2)
     assert lr[7] == pytest.approx(1e-2 if mode == "triangular" else 1e-3 + 0.5 * (1e-2 - 1e-3))
+
+
+def test_anneal_decays_from_lr_to_zero_over_max_steps(recording, tmp_path):
+    """--lr-mode anneal: step k runs at lr (1 + cos(pi (k - 1) / max_steps)) / 2, falling every
+    step; without --max-steps it refuses to start."""
+    out = tmp_path / "anneal"
+    _run(_args(recording, out, "--max-steps", "8", "--lr-mode", "anneal"))
+    lr = {r["step"]: r["lr"] for r in _log(out)}
+    assert sorted(lr) == list(range(1, 9))
+    for k, v in lr.items():
+        assert v == pytest.approx(1e-3 * 0.5 * (1 + math.cos(math.pi * (k - 1) / 8)))
+    assert all(lr[k] > lr[k + 1] for k in range(1, 8))
+    with pytest.raises(SystemExit, match="max-steps"):
+        _run(_args(recording, tmp_path / "no-max", "--lr-mode", "anneal"))
 
 
 def test_mixed_batches_take_each_sets_share_in_its_own_order():

@@ -7,7 +7,9 @@ Adam (lr 1e-4 = the paper's initial rate) with a triangular2 cyclic schedule
 (torch CyclicLR: from ``--lr`` up to ``--max-lr`` and back in 2 x
 ``--cycle-steps`` optimiser steps, the amplitude halving every cycle; default
 half-cycle: 2 epochs); ``--lr-mode triangular`` keeps every cycle at full height (the
-cycles that trained the shipped model, tools/MODEL.md E7-E13). Writes to RUN_DIR:
+cycles that trained the shipped model, tools/MODEL.md E7-E13); ``--lr-mode anneal`` is no
+cycle but a cosine decay from ``--lr`` to 0 over ``--max-steps`` (a cool-down after the
+cycles, tools/MODEL.md E15). Writes to RUN_DIR:
 
 - ``config.json``: model configuration and training arguments;
 - ``log.jsonl``: one JSON line per step (step, epoch, lr, every loss term,
@@ -67,6 +69,19 @@ def build_config(name: str) -> ModelConfig:
     if os.path.isfile(name):
         return ModelConfig.from_json(Path(name).read_text(encoding="utf-8"))
     raise SystemExit(f"--config: unknown configuration {name!r} (one of {', '.join(CONFIGS)} or a JSON file)")
+
+
+def lr_schedule(opt, args, cycle: int):
+    """The learning-rate scheduler of ``--lr-mode`` (stepped once per optimiser step)."""
+    mode = getattr(args, "lr_mode", "triangular2")
+    if mode == "anneal":
+        if args.max_steps < 1:
+            raise SystemExit("--lr-mode anneal needs --max-steps (the length of the decay)")
+        total = args.max_steps
+        return torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda k: 0.5 * (1.0 + math.cos(math.pi * min(k, total) / total)))
+    return torch.optim.lr_scheduler.CyclicLR(opt, base_lr=args.lr, max_lr=args.max_lr, step_size_up=cycle,
+                                             mode=mode, cycle_momentum=False)
 
 
 def init_weights(init: dict, cfg: ModelConfig, path) -> dict:
@@ -191,8 +206,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--lr", type=float, default=1e-4, help="initial = lowest learning rate of the cycle")
     p.add_argument("--max-lr", type=float, default=1e-3,
                    help="peak of the first cycle (triangular2 halves it per cycle, triangular keeps it)")
-    p.add_argument("--lr-mode", choices=("triangular2", "triangular"), default="triangular2",
-                   help="CyclicLR mode: triangular2 halves the peak every cycle, triangular repeats it")
+    p.add_argument("--lr-mode", choices=("triangular2", "triangular", "anneal"), default="triangular2",
+                   help="CyclicLR mode: triangular2 halves the peak every cycle, triangular repeats it; anneal: "
+                        "no cycle, a cosine decay from --lr to 0 over --max-steps (needs --max-steps)")
     p.add_argument("--cycle-steps", type=int, default=0, help="half-cycle length in steps (0: 2 epochs)")
     p.add_argument("--log-every", type=int, default=10, help="stdout line every N steps")
     p.add_argument("--ckpt-every", type=int, default=200, help="checkpoint every K steps (and at epoch ends)")
@@ -337,8 +353,7 @@ def train(
             raise SystemExit(f"--dinov2-checkpoint: {e}")
         print(f"DINOv2 weights: {info['tensors']} tensors from {dinov2}; the ViT is frozen", flush=True)
     opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=args.lr)
-    sched = torch.optim.lr_scheduler.CyclicLR(opt, base_lr=args.lr, max_lr=args.max_lr, step_size_up=cycle,
-                                              mode=getattr(args, "lr_mode", "triangular2"), cycle_momentum=False)
+    sched = lr_schedule(opt, args, cycle)
     epoch, step_in_epoch, step = 0, 0, 0
     ckpt_path = out / CKPT_FILE
     if args.resume:
