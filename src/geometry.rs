@@ -118,6 +118,27 @@ pub fn rotation_angle_deg(r1: &Mat3, r2: &Mat3) -> f64 {
     cos.acos().to_degrees()
 }
 
+/// The weighted chordal L2 mean of rotations: the proper rotation nearest (Frobenius) to
+/// `sum_i w_i R_i`, by SVD with the sign of the smallest singular direction fixed. For two
+/// rotations it lies on the geodesic between them, nearer the heavier one. Weights should be
+/// non-negative with a positive sum; a sum of rank below 2 (e.g. two rotations 180 degrees
+/// apart, equal weights) has no unique answer and gives one of the nearest.
+pub fn weighted_chordal_mean(rotations: &[(Mat3, f64)]) -> Mat3 {
+    let sum = rotations.iter().fold(Mat3::zeros(), |acc, (r, w)| acc + r * *w);
+    let svd = sum.svd(true, true);
+    match (svd.u, svd.v_t) {
+        (Some(u), Some(v_t)) => {
+            let mut sign = Mat3::identity();
+            if (u * v_t).determinant() < 0.0 {
+                sign[(2, 2)] = -1.0;
+            }
+            u * sign * v_t
+        }
+        // nalgebra computes U and V when asked; keep a rotation regardless
+        _ => rotations.first().map_or(Mat3::identity(), |(r, _)| *r),
+    }
+}
+
 /// How a pose is written in JSON: `R` (3x3, row-major) and `t` (metres), or a
 /// 4x4 `RT` whose rotation block may be scaled (NOCS style).
 /// A pose is read flattened into its parent (an instance), where serde loses the field
@@ -288,6 +309,34 @@ mod tests {
         let a = rotation_axis_angle(&Vec3::new(0.3, 1.0, -0.2), 0.4);
         let b = a * rotation_axis_angle(&Vec3::x(), 7f64.to_radians());
         assert!((rotation_angle_deg(&a, &b) - 7.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn weighted_chordal_mean_lies_on_the_geodesic() {
+        let base = rotation_axis_angle(&Vec3::new(0.3, 1.0, -0.2), 0.9);
+        let axis = Vec3::new(-0.5, 0.2, 1.0).normalize();
+        let theta = 40f64.to_radians();
+        let other = base * rotation_axis_angle(&axis, theta);
+        // about one axis, R(0) and R(theta) weighted 1-w, w give the angle
+        // atan2(w sin theta, 1 - w + w cos theta) (the midpoint for w = 1/2)
+        for w in [0.0, 0.25, 0.5, 0.8, 1.0] {
+            let mean = weighted_chordal_mean(&[(base, 1.0 - w), (other, w)]);
+            let want = base * rotation_axis_angle(&axis, (w * theta.sin()).atan2(1.0 - w + w * theta.cos()));
+            assert!((mean - want).abs().max() < 1e-12, "w {w}");
+            assert!((mean.determinant() - 1.0).abs() < 1e-12);
+        }
+        let half = weighted_chordal_mean(&[(base, 1.0), (other, 1.0)]);
+        assert!((rotation_angle_deg(&half, &base) - 20.0).abs() < 1e-9);
+        // many rotations: a proper rotation, invariant to a common left factor
+        let rs: Vec<(Mat3, f64)> = (0..5)
+            .map(|i| (rotation_axis_angle(&Vec3::new(1.0, i as f64, 0.5), 0.2 * i as f64), 1.0 + i as f64))
+            .collect();
+        let mean = weighted_chordal_mean(&rs);
+        assert!((mean * mean.transpose() - Mat3::identity()).abs().max() < 1e-12);
+        assert!((mean.determinant() - 1.0).abs() < 1e-12);
+        let left = rotation_axis_angle(&Vec3::new(0.0, 0.4, 1.0), 2.0);
+        let moved: Vec<(Mat3, f64)> = rs.iter().map(|(r, w)| (left * r, *w)).collect();
+        assert!((weighted_chordal_mean(&moved) - left * mean).abs().max() < 1e-12);
     }
 
     #[test]

@@ -418,7 +418,10 @@ fn angle_deg(a: &tricons::geometry::Mat3, b: &tricons::geometry::Mat3) -> f64 {
 fn rotation_from_keypoints_follows_the_card_and_matches_pytorch() {
     let dir = tempfile::tempdir().unwrap();
     let card = copy_model(dir.path());
-    edit_card(&card, |v| v["rotation_from_keypoints"] = serde_json::json!(["bottle", "mug"]));
+    edit_card(&card, |v| {
+        v["rotation_from_keypoints"] = serde_json::json!(["bottle", "mug"]);
+        v.as_object_mut().unwrap().remove("rotation_keypoint_blend");
+    });
     let est = PoseEstimator::load(&card).unwrap();
     let all = cases("pose_net");
     let out = est.run_inputs(&fixture_inputs(&all)).unwrap();
@@ -441,6 +444,44 @@ fn rotation_from_keypoints_follows_the_card_and_matches_pytorch() {
             assert_eq!(pose.rotation, if listed { fit } else { e.camera_from_object.rotation }, "{class:?}");
         }
     }
+
+    // `rotation_keypoint_blend`: for the listed classes the rotation halfway (w 1/2) or a
+    // quarter of the way (w 1/4, nearer the head) along the geodesic from the head's to the fit's
+    edit_card(&card, |v| v["rotation_keypoint_blend"] = serde_json::json!({"camera": 0.5, "laptop": 0.25}));
+    let blend = PoseEstimator::load(&card).unwrap();
+    for e in est.run_inputs(&fixture_inputs(&all)).unwrap() {
+        let e = e.expect("estimated");
+        let (head, fit) = (e.camera_from_object.rotation, e.keypoint_rotation().unwrap());
+        let between = angle_deg(&head, &fit);
+        for (class, w) in [(tricons::Category::Camera, 0.5), (tricons::Category::Laptop, 0.25)] {
+            let pose = blend.camera_from_object(&e, class);
+            assert_eq!(pose.translation_m, e.camera_from_object.translation_m);
+            let (from_head, to_fit) = (angle_deg(&head, &pose.rotation), angle_deg(&pose.rotation, &fit));
+            assert!(
+                (from_head + to_fit - between).abs() < 1e-6,
+                "on the geodesic: {from_head} + {to_fit} vs {between}"
+            );
+            // two rotations theta apart weighted 1-w, w: the mean is atan2(w sin, 1-w+w cos) from the first
+            let t = between.to_radians();
+            let want = (w * t.sin()).atan2(1.0 - w + w * t.cos()).to_degrees();
+            assert!((from_head - want).abs() < 1e-6, "{class:?}: {from_head} deg from the head, want {want}");
+        }
+        assert_eq!(blend.camera_from_object(&e, tricons::Category::Mug).rotation, fit, "still in the list");
+        assert_eq!(blend.camera_from_object(&e, tricons::Category::Can).rotation, head, "in neither");
+    }
+    for (bad, words) in [
+        (serde_json::json!({"camera": 1.0}), "strictly between 0 and 1"),
+        (serde_json::json!({"camera": 0.0}), "strictly between 0 and 1"),
+        (serde_json::json!({"mug": 0.5}), "also in rotation_from_keypoints"),
+        (serde_json::json!({"cup": 0.5}), "rotation_keypoint_blend"),
+    ] {
+        edit_card(&card, |v| v["rotation_keypoint_blend"] = bad.clone());
+        let err = PoseEstimator::load(&card).unwrap_err().to_string();
+        assert!(err.contains("rotation_keypoint_blend") && err.contains(words), "{err}");
+    }
+    edit_card(&card, |v| {
+        v.as_object_mut().unwrap().remove("rotation_keypoint_blend");
+    });
 
     // `keypoint_fit: robust`: the refit without keypoints of residual above 3x the median;
     // one keypoint moved far off (a background pixel inside a loose mask) pulls the plain fit
@@ -473,6 +514,15 @@ fn rotation_from_keypoints_follows_the_card_and_matches_pytorch() {
     });
     let err = PoseEstimator::load(&card).unwrap_err().to_string();
     assert!(err.contains("rotation_from_keypoints") && err.contains("kpt_nocs"), "{err}");
+    edit_card(&card, |v| {
+        v["rotation_from_keypoints"] = serde_json::json!([]);
+        v["rotation_keypoint_blend"] = serde_json::json!({"camera": 0.5});
+    });
+    let err = PoseEstimator::load(&card).unwrap_err().to_string();
+    assert!(err.contains("rotation_keypoint_blend") && err.contains("kpt_nocs"), "{err}");
+    edit_card(&card, |v| {
+        v.as_object_mut().unwrap().remove("rotation_keypoint_blend");
+    });
     // fewer than three outputs is an error, not a panic
     edit_card(&card, |v| {
         v["rotation_from_keypoints"] = serde_json::json!([]);
@@ -536,6 +586,7 @@ fn the_consistency_score_follows_the_card_and_the_pytorch_outputs() {
     edit_card(&card, |v| {
         v["consistency_score_scale"] = serde_json::json!(0.3);
         v["rotation_from_keypoints"] = serde_json::json!([]);
+        v.as_object_mut().unwrap().remove("rotation_keypoint_blend");
         v["outputs"].as_array_mut().unwrap().truncate(3);
     });
     let err = PoseEstimator::load(&card).unwrap_err().to_string();

@@ -47,7 +47,14 @@ pub struct ModelCard {
     /// default) keeps the head's.
     #[serde(default)]
     pub rotation_from_keypoints: Vec<crate::category::Category>,
-    /// How that rotation is fitted (default: least squares over every keypoint).
+    /// Classes whose rotation is a blend of the two: the weighted chordal mean (the rotation
+    /// nearest to `(1 - w) R_head + w R_keypoints`) with the weight `w` in (0, 1) given here
+    /// per class. The head's and the keypoints' errors are partly independent; chosen on
+    /// SynthNOCS-val (tools/MODEL.md, E15). A class may not be in both fields. Empty (the
+    /// default): no blend.
+    #[serde(default)]
+    pub rotation_keypoint_blend: std::collections::BTreeMap<crate::category::Category, f64>,
+    /// How the keypoint rotation is fitted (default: least squares over every keypoint).
     #[serde(default)]
     pub keypoint_fit: KeypointFit,
     /// When set, the reported score is the detection's times `exp(-r / scale)`, `r` the
@@ -58,7 +65,7 @@ pub struct ModelCard {
     pub consistency_score_scale: Option<f64>,
 }
 
-/// The fit of [`ModelCard::rotation_from_keypoints`].
+/// The fit of [`ModelCard::rotation_from_keypoints`] and [`ModelCard::rotation_keypoint_blend`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum KeypointFit {
@@ -131,9 +138,25 @@ impl ModelCard {
         {
             return bad(format!("field `consistency_score_scale`: must be a positive number, found {scale}"));
         }
+        for (class, &w) in &card.rotation_keypoint_blend {
+            if !(w > 0.0 && w < 1.0) {
+                return bad(format!(
+                    "field `rotation_keypoint_blend`: the weight of {} must lie strictly between 0 and 1, found {w} \
+                     (1: list the class in rotation_from_keypoints; 0: leave it out)",
+                    class.name()
+                ));
+            }
+            if card.rotation_from_keypoints.contains(class) {
+                return bad(format!(
+                    "field `rotation_keypoint_blend`: {} is also in rotation_from_keypoints; name it in one",
+                    class.name()
+                ));
+            }
+        }
         let has_keypoint_outputs = outputs.get(3..5) == Some(&["kpt_3d", "kpt_nocs"].map(String::from)[..]);
         for (used, field) in [
             (!card.rotation_from_keypoints.is_empty(), "rotation_from_keypoints"),
+            (!card.rotation_keypoint_blend.is_empty(), "rotation_keypoint_blend"),
             (card.consistency_score_scale.is_some(), "consistency_score_scale"),
         ] {
             if used && !has_keypoint_outputs {
@@ -150,6 +173,16 @@ impl ModelCard {
             return bad("field `preprocessing`: rgb_scale must be 1/255 and rgb_std positive".into());
         }
         Ok(card)
+    }
+
+    /// The weight of the keypoint rotation for `class`: 1 for the classes of
+    /// [`Self::rotation_from_keypoints`], the [`Self::rotation_keypoint_blend`] weight, else 0.
+    pub fn keypoint_rotation_weight(&self, class: crate::category::Category) -> f64 {
+        if self.rotation_from_keypoints.contains(&class) {
+            1.0
+        } else {
+            self.rotation_keypoint_blend.get(&class).copied().unwrap_or(0.0)
+        }
     }
 
     /// The graph file, resolved against the card's directory.

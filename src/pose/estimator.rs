@@ -236,17 +236,25 @@ impl PoseEstimator {
         &self.card
     }
 
-    /// The pose to report for an instance of `class`: the head's rotation, or for the
-    /// card's `rotation_from_keypoints` classes the one solved from the keypoints (the
-    /// head's when that fit is degenerate); translation always the head's.
+    /// The pose to report for an instance of `class`: the head's rotation, for the card's
+    /// `rotation_from_keypoints` classes the one solved from the keypoints, for its
+    /// `rotation_keypoint_blend` classes the weighted chordal mean of the two (the head's
+    /// alone when the keypoint fit is degenerate); translation always the head's.
     pub fn camera_from_object(&self, estimate: &PoseEstimate, class: crate::category::Category) -> Pose {
         let head = estimate.camera_from_object;
-        if !self.card.rotation_from_keypoints.contains(&class) {
+        let w = self.card.keypoint_rotation_weight(class);
+        if w <= 0.0 {
             return head;
         }
-        estimate
-            .keypoint_rotation_with(self.card.keypoint_fit)
-            .map_or(head, |rotation| Pose::new(rotation, head.translation_m))
+        let Some(keypoints) = estimate.keypoint_rotation_with(self.card.keypoint_fit) else {
+            return head;
+        };
+        let rotation = if w >= 1.0 {
+            keypoints
+        } else {
+            crate::geometry::weighted_chordal_mean(&[(head.rotation, 1.0 - w), (keypoints, w)])
+        };
+        Pose::new(rotation, head.translation_m)
     }
 
     /// The score to report for an estimate of a detection scored `detection_score`: as is,

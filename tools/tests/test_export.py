@@ -107,9 +107,12 @@ def test_cli_random_init_writes_onnx_and_card(tmp_path, monkeypatch):
     metrics.write_text(json.dumps({"mean": {"5deg2cm": 12.5}}))
     out = tmp_path / "sub" / "m.onnx"
     assert export.main(["--config", str(cfg_file), "--random-init", "5", "--out", str(out),
-                        "--metrics", f"published={metrics}", "--consistency-score-scale", "0.3"]) == 0
+                        "--metrics", f"published={metrics}", "--consistency-score-scale", "0.3",
+                        "--rotation-from-keypoints", "bowl", "--rotation-keypoint-blend", "mug=0.5,camera=0.25"]) == 0
     card = json.loads((tmp_path / "sub" / "m.card.json").read_text())
     assert card["consistency_score_scale"] == 0.3
+    assert card["rotation_from_keypoints"] == ["bowl"]
+    assert card["rotation_keypoint_blend"] == {"camera": 0.25, "mug": 0.5}
     data = out.read_bytes()
     assert card["onnx"]["sha256"] == hashlib.sha256(data).hexdigest() and card["onnx"]["bytes"] == len(data)
     assert card["weights"] == {"kind": "random", "seed": 5}
@@ -134,6 +137,12 @@ def test_cli_errors_are_clear(tmp_path, capsys):
         export.main(["--config", "shipped", "--random-init", "0", "--out", str(tmp_path / "x.onnx"),
                      "--consistency-score-scale", "0"])
     assert "--consistency-score-scale" in capsys.readouterr().err
+    assert not (tmp_path / "x.onnx").exists()
+    for blend in ("mug=1", "cup=0.5", "mug"):
+        with pytest.raises(SystemExit):
+            export.main(["--config", "shipped", "--random-init", "0", "--out", str(tmp_path / "x.onnx"),
+                         "--rotation-keypoint-blend", blend])
+        assert "--rotation-keypoint-blend" in capsys.readouterr().err
     assert not (tmp_path / "x.onnx").exists()
 
 
@@ -245,3 +254,13 @@ def test_fixture_edge_cases_are_what_they_claim():
     assert np.isfinite(a["phi"]).all()
     phi, _ = ref.triangle_descriptor(a["query"], a["points"], 16)
     np.testing.assert_allclose(phi, a["phi"], rtol=1e-5, atol=1e-6)
+
+
+def test_card_weights_name_the_checkpoints_an_average_came_from():
+    model = {"w": torch.zeros(2)}
+    ck = {"model": model, "step": 3000, "epoch": 1, "batchnorm": "averaged running statistics",
+          "averaged_from": ["../models/checkpoints/tricons-pose-e12/model-step3000.pt", "/x/e13/model-step3000.pt"]}
+    w = export._weights_from_checkpoint(ck, "runs/swa.pt", "note")
+    assert w["averaged_from"] == ["tricons-pose-e12/model-step3000.pt", "e13/model-step3000.pt"]
+    assert w["batchnorm"] == "averaged running statistics" and w["checkpoint"] == "swa.pt" and w["step"] == 3000
+    assert "averaged_from" not in export._weights_from_checkpoint({"model": model}, "m.pt", None)

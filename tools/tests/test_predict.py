@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from tricons_pose.config import ModelConfig
+from tricons_pose.predict import CLASSES
 from tricons_pose.model import TriConsPose
 from tricons_pose.predict import load_model, predict_recording, write_jsonl
 from tricons_pose.recording import Recording
@@ -131,6 +132,55 @@ def test_rotation_from_keypoints_replaces_only_the_listed_classes(recording):
     assert parse_classes("bottle, mug") == ("bottle", "mug") and parse_classes("") == ()
     with pytest.raises(ValueError, match="unknown classes"):
         predict_recording(model, cfg, recording, rotation_from_keypoints=("cup",))
+
+
+def test_rotation_keypoint_blend_lies_between_the_head_and_the_fit(recording):
+    """A blended class reports the weighted chordal mean of the head's rotation and the keypoint
+    fit's: on the geodesic between them, atan2(w sin a, 1 - w + w cos a) from the head for two
+    rotations a apart; other classes and fields unchanged; bad blends refused."""
+    import math
+
+    from tricons_pose.predict import blend_rotations, check_blend, parse_blend
+
+    torch.manual_seed(0)
+    cfg = tiny_config()
+    model = TriConsPose(cfg).eval()
+    head = predict_recording(model, cfg, recording, batch_size=4)
+    every = predict_recording(model, cfg, recording, batch_size=4, rotation_from_keypoints=CLASSES)
+    classes = sorted({i["class"] for f in head for i in f["instances"]})
+    w = 0.3
+    blended = predict_recording(model, cfg, recording, batch_size=4,
+                                rotation_keypoint_blend={classes[0]: w})
+
+    def angle(a, b):
+        r = torch.tensor(a, dtype=torch.float64).T @ torch.tensor(b, dtype=torch.float64)
+        return math.acos(max(-1.0, min(1.0, (float(torch.trace(r)) - 1) / 2)))
+
+    checked = 0
+    for fh, fe, fb in zip(head, every, blended):
+        for h, e, b in zip(fh["instances"], fe["instances"], fb["instances"]):
+            assert b["t"] == h["t"] and b["s"] == h["s"]
+            if h["class"] != classes[0]:
+                assert b["R"] == h["R"]
+                continue
+            a = angle(h["R"], e["R"])
+            if a < 1e-3:
+                continue
+            assert abs(angle(h["R"], b["R"]) + angle(b["R"], e["R"]) - a) < 1e-5
+            assert abs(angle(h["R"], b["R"]) - math.atan2(w * math.sin(a), 1 - w + w * math.cos(a))) < 1e-5
+            checked += 1
+    assert checked > 0
+    # the helper itself: a proper rotation, the midpoint of rotations about one axis
+    Rz = lambda t: torch.tensor([[math.cos(t), -math.sin(t), 0], [math.sin(t), math.cos(t), 0], [0, 0, 1.0]],
+                                dtype=torch.float64)
+    assert torch.allclose(blend_rotations(Rz(0.0), Rz(0.8), 0.5), Rz(0.4), atol=1e-12)
+    assert parse_blend("camera=0.5, mug=0.25") == {"camera": 0.5, "mug": 0.25} and parse_blend("") == {}
+    for bad, words in ((lambda: parse_blend("camera"), "CLASS=WEIGHT"),
+                       (lambda: check_blend({"cup": 0.5}), "unknown class"),
+                       (lambda: check_blend({"mug": 1.0}), "strictly between"),
+                       (lambda: check_blend({"mug": 0.5}, ("mug",)), "also in rotation_from_keypoints")):
+        with pytest.raises(ValueError, match=words):
+            bad()
 
 
 def test_keypoint_residual_exact_cases():

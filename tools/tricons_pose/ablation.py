@@ -103,7 +103,9 @@ def evaluate(args) -> int:
         # variants' GatherElements (numpy.choose takes at most 64 arrays); the runtime can
         print(f"[ablation] eval {variant} seed {seed} cycle {cycle} on {args.split}", flush=True)
         rc = subprocess.call(["tools/eval_runtime.sh", str(d / END), str(out), f"data/synthnocs-{args.split}"],
-                             cwd=ROOT, env={**os.environ, "MASKS": "gt", "SEEDS": "0 1 2", "EXPORT_ARGS": "--no-check"})
+                             cwd=ROOT, env={**os.environ, "MASKS": "gt", "SEEDS": "0 1 2", "EXPORT_ARGS": "--no-check",
+                                  # the card protocol the ablation started with (no rotation blend)
+                                  "ROTATION_KEYPOINT_BLEND": "none"})
         if rc != 0:
             raise SystemExit(f"{out}: tools/eval_runtime.sh exited with {rc}")
     return 0

@@ -211,11 +211,16 @@ def standard_op_types(onnx_bytes: bytes) -> list[str]:
 
 def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dict, check: dict | None,
                metrics: Dict[str, dict], n_params: int, rotation_from_keypoints: Sequence[str] = (),
-               consistency_score_scale: float | None = None) -> dict:
+               consistency_score_scale: float | None = None,
+               rotation_keypoint_blend: Dict[str, float] | None = None) -> dict:
     """The model card (docs/formats.md, "Model card")."""
+    from .predict import check_blend
+
     unknown = sorted(set(rotation_from_keypoints) - set(CLASSES))
     if unknown:
         raise ValueError(f"rotation_from_keypoints: unknown classes {unknown} (known: {CLASSES})")
+    blend = dict(rotation_keypoint_blend or {})
+    check_blend(blend, rotation_from_keypoints)
     if consistency_score_scale is not None and not (0 < consistency_score_scale < float("inf")):
         raise ValueError(f"consistency_score_scale: must be a positive number, found {consistency_score_scale}")
     crop, n, m = cfg.crop_size, cfg.n_points, cfg.n_keypoints
@@ -264,6 +269,7 @@ def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dic
         },
         "categories": list(CLASSES),
         "rotation_from_keypoints": [c for c in CLASSES if c in set(rotation_from_keypoints)],
+        **({"rotation_keypoint_blend": {c: blend[c] for c in CLASSES if c in blend}} if blend else {}),
         **({} if consistency_score_scale is None else {"consistency_score_scale": consistency_score_scale}),
         "n_keypoints": m,
         "parameters": n_params,
@@ -309,6 +315,11 @@ def _weights_from_checkpoint(ck: dict, path: str, note: str | None) -> dict:
         w["training_args"] = {k: args[k] for k in ("data", "config", "epochs", "batch_size", "seed", "lr", "max_lr",
                                                 "dinov2_checkpoint")
                               if k in args}
+    if ck.get("averaged_from"):
+        # python -m tricons_pose.average: the mean of these checkpoints' weights
+        w["averaged_from"] = [os.path.basename(os.path.dirname(p)) + "/" + os.path.basename(p)
+                              for p in ck["averaged_from"]]
+        w["batchnorm"] = ck.get("batchnorm")
     if note:
         w["training_note"] = note
     return w
@@ -334,6 +345,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--rotation-from-keypoints", default="", metavar="CLASSES",
                    help="comma-separated classes (or 'all') whose rotation the runtime solves from the keypoints' "
                         "NOCS coordinates instead of taking the pose head's (card field; tools/MODEL.md)")
+    p.add_argument("--rotation-keypoint-blend", default="", metavar="CLASS=W,...",
+                   help="classes whose rotation the runtime takes as the weighted chordal mean of the head's "
+                        "(1 - W) and the keypoints' (W), e.g. camera=0.5,laptop=0.5,mug=0.5 (card field; the "
+                        "shipped card's; tools/MODEL.md, E15)")
     p.add_argument("--consistency-score-scale", type=float, metavar="SCALE",
                    help="the runtime reports each pose's score times exp(-r / SCALE), r the disagreement "
                         "between the pose head and the keypoints in box diagonals (card field; the shipped "
@@ -342,6 +357,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     scale = args.consistency_score_scale
     if scale is not None and not 0 < scale < float("inf"):
         p.error(f"--consistency-score-scale: must be a positive number, found {scale}")
+    from .predict import check_blend, parse_blend, parse_classes
+
+    try:
+        blend = parse_blend(args.rotation_keypoint_blend)
+        check_blend(blend, parse_classes(args.rotation_from_keypoints))
+    except ValueError as e:
+        p.error(f"--rotation-keypoint-blend: {e}")
 
     if args.config is not None:
         if args.random_init is None:
@@ -375,10 +397,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     n_params = sum(t.numel() for t in model.parameters())
-    from .predict import parse_classes
-
     card = build_card(cfg, out.name, onnx_bytes, weights, check, metrics, n_params,
-                      parse_classes(args.rotation_from_keypoints), args.consistency_score_scale)
+                      parse_classes(args.rotation_from_keypoints), args.consistency_score_scale, blend)
     write_atomic(out, onnx_bytes)
     write_atomic(card_path(out), (json.dumps(card, indent=2) + "\n").encode("utf-8"))
     msg = f"{out} ({len(onnx_bytes) / 1e6:.2f} MB, {n_params} parameters) + {card_path(out).name}"

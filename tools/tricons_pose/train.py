@@ -9,7 +9,7 @@ Adam (lr 1e-4 = the paper's initial rate) with a triangular2 cyclic schedule
 half-cycle: 2 epochs); ``--lr-mode triangular`` keeps every cycle at full height (the
 cycles that trained the shipped model, tools/MODEL.md E7-E13); ``--lr-mode anneal`` is no
 cycle but a cosine decay from ``--lr`` to 0 over ``--max-steps`` (a cool-down after the
-cycles, tools/MODEL.md E15). Writes to RUN_DIR:
+cycles, tools/MODEL.md E16). Writes to RUN_DIR:
 
 - ``config.json``: model configuration and training arguments;
 - ``log.jsonl``: one JSON line per step (step, epoch, lr, every loss term,
