@@ -11,7 +11,7 @@
 #   RECORDING   default data/synthnocs-val
 # Environment: TRICONS (default target/release/tricons), SEEDS (default "0 1 2"),
 #   MASKS (default "gt model"), ROTATION_FROM_KEYPOINTS (default bowl, as the shipped card),
-#   ROTATION_KEYPOINT_BLEND (default camera=0.5,laptop=0.5,mug=0.5, as the shipped card; "none"
+#   ROTATION_KEYPOINT_BLEND (default camera=0.5,laptop=0.25,mug=0.5, as the shipped card; "none"
 #   leaves the field out, the protocol before 2026-12-06),
 #   CONSISTENCY_SCORE_SCALE (default 0.3, as the shipped card; "none" leaves the field out),
 #   EXPORT_ARGS (more arguments for the export, e.g. --no-check: the onnx reference evaluator's
@@ -27,7 +27,7 @@ masks=${MASKS:-gt model}
 mkdir -p "$out"
 consistency=
 [ "${CONSISTENCY_SCORE_SCALE:-0.3}" = none ] || consistency="--consistency-score-scale ${CONSISTENCY_SCORE_SCALE:-0.3}"
-blend=${ROTATION_KEYPOINT_BLEND:-camera=0.5,laptop=0.5,mug=0.5}
+blend=${ROTATION_KEYPOINT_BLEND:-camera=0.5,laptop=0.25,mug=0.5}
 [ "$blend" = none ] && blend=
 root=$(pwd)
 out=$(cd "$out" && pwd)
