@@ -145,7 +145,13 @@ def blend_rotations(R_head: torch.Tensor, R_kpt: torch.Tensor, w: float) -> torc
     """The weighted chordal mean of two rotations (..., 3, 3): the proper rotation nearest to
     ``(1 - w) R_head + w R_kpt`` (SVD, the sign of the last singular direction fixed); the
     runtime's ``geometry::weighted_chordal_mean``."""
-    U, _, Vh = torch.linalg.svd((1.0 - w) * R_head + w * R_kpt)
+    return nearest_rotation((1.0 - w) * R_head + w * R_kpt)
+
+
+def nearest_rotation(m: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) -> the proper rotations nearest (Frobenius) to ``m``: SVD, the sign of the
+    last singular direction fixed so that det = +1."""
+    U, _, Vh = torch.linalg.svd(m)
     d = torch.sign(torch.linalg.det(U @ Vh))
     D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
     return U @ D @ Vh
@@ -174,10 +180,7 @@ def keypoint_rotation(kpt_nocs: torch.Tensor, kpt_3d: torch.Tensor, dtype: torch
     n = kpt_nocs.double() - kpt_nocs.double().mean(dim=1, keepdim=True)
     q = kpt_3d.double() - kpt_3d.double().mean(dim=1, keepdim=True)
     cov = q.transpose(1, 2) @ n  # (B, 3, 3): sum_i q_i n_i^T
-    U, _, Vh = torch.linalg.svd(cov)
-    d = torch.sign(torch.linalg.det(U @ Vh))
-    D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
-    return (U @ D @ Vh).to(dtype or kpt_3d.dtype)
+    return nearest_rotation(cov).to(dtype or kpt_3d.dtype)
 
 
 def keypoint_residual(R: torch.Tensor, t: torch.Tensor, s: torch.Tensor, kpt_nocs: torch.Tensor,
