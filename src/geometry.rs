@@ -125,18 +125,25 @@ pub fn rotation_angle_deg(r1: &Mat3, r2: &Mat3) -> f64 {
 /// apart, equal weights) has no unique answer and gives one of the nearest.
 pub fn weighted_chordal_mean(rotations: &[(Mat3, f64)]) -> Mat3 {
     let sum = rotations.iter().fold(Mat3::zeros(), |acc, (r, w)| acc + r * *w);
-    let svd = sum.svd(true, true);
-    match (svd.u, svd.v_t) {
-        (Some(u), Some(v_t)) => {
-            let mut sign = Mat3::identity();
-            if (u * v_t).determinant() < 0.0 {
-                sign[(2, 2)] = -1.0;
-            }
-            u * sign * v_t
-        }
+    match nearest_rotation(&sum) {
+        Some((rotation, _)) => rotation,
         // nalgebra computes U and V when asked; keep a rotation regardless
-        _ => rotations.first().map_or(Mat3::identity(), |(r, _)| *r),
+        None => rotations.first().map_or(Mat3::identity(), |(r, _)| *r),
     }
+}
+
+/// The proper rotation `R` nearest (Frobenius) to `m`: `U diag(1, 1, +-1) V^T` from its SVD,
+/// the last sign chosen so that `det R = +1`, with `tr(R^T m)` (the singular values summed
+/// under that sign). `None` when nalgebra returns no `U` or `V`.
+fn nearest_rotation(m: &Mat3) -> Option<(Mat3, f64)> {
+    let svd = m.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut sign = Mat3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        sign[(2, 2)] = -1.0;
+    }
+    let trace = svd.singular_values.component_mul(&sign.diagonal()).sum();
+    Some((u * sign * v_t, trace))
 }
 
 /// How a pose is written in JSON: `R` (3x3, row-major) and `t` (metres), or a
@@ -239,14 +246,8 @@ pub fn fit_similarity(src: &[Vec3], dst: &[Vec3]) -> Option<SimilarityFit> {
     if var_s <= f64::EPSILON {
         return None;
     }
-    let svd = cov.svd(true, true);
-    let (u, v_t) = (svd.u?, svd.v_t?);
-    let mut sign = Mat3::identity();
-    if (u * v_t).determinant() < 0.0 {
-        sign[(2, 2)] = -1.0;
-    }
-    let rotation = u * sign * v_t;
-    let scale = (svd.singular_values.component_mul(&sign.diagonal())).sum() / var_s;
+    let (rotation, trace) = nearest_rotation(&cov)?;
+    let scale = trace / var_s;
     if !(scale.is_finite() && scale > 0.0) {
         return None;
     }
