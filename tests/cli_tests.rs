@@ -311,7 +311,8 @@ fn segment_writes_records_label_images_and_overlays() {
     let eval_all: serde_json::Value =
         serde_json::from_str(&fs::read_to_string(dir.path().join("eval-all.json")).unwrap()).unwrap();
     let iou = eval["duplicate_mask_iou"].as_f64().expect("the shipped card sets duplicate_mask_iou");
-    assert!(eval_all["duplicate_mask_iou"].is_null());
+    let inside = eval["duplicate_mask_inside"].as_f64().expect("the shipped card sets duplicate_mask_inside");
+    assert!(eval_all["duplicate_mask_iou"].is_null() && eval_all["duplicate_mask_inside"].is_null());
     let dropped = eval["duplicates_dropped"].as_u64().unwrap();
     assert!(dropped > 0, "the demo frames hold duplicates: {eval}");
     assert_eq!(eval["detections"].as_u64().unwrap() + dropped, eval_all["detections"].as_u64().unwrap());
@@ -336,6 +337,11 @@ fn segment_writes_records_label_images_and_overlays() {
         let union = a.iter().zip(b).filter(|(x, y)| **x || **y).count() as f64;
         inter / union.max(1.0)
     };
+    // the fraction of `a`'s pixels inside `b`
+    let within = |a: &[bool], b: &[bool]| {
+        let inter = a.iter().zip(b).filter(|(x, y)| **x && **y).count() as f64;
+        inter / (a.iter().filter(|x| **x).count() as f64).max(1.0)
+    };
     for (kept, every) in records.iter().zip(&all_records) {
         let (kept, every) = (masks(kept), masks(every));
         // No two kept detections overlap above the threshold ...
@@ -344,10 +350,12 @@ fn segment_writes_records_label_images_and_overlays() {
                 assert!(overlap(&a.1, &b.1) <= iou);
             }
         }
-        // ... each kept one is one of all, and each dropped one overlaps a better kept one.
+        // ... each kept one is one of all, and each dropped one overlaps a better kept one
+        // or lies mostly inside it.
         for e in &every {
             let is_kept = kept.iter().any(|k| k.0 == e.0 && k.1 == e.1);
-            assert!(is_kept || kept.iter().any(|k| k.0 >= e.0 && overlap(&k.1, &e.1) > iou));
+            let duplicate = |k: &(f32, Vec<bool>)| overlap(&k.1, &e.1) > iou || within(&e.1, &k.1) > inside;
+            assert!(is_kept || kept.iter().any(|k| k.0 >= e.0 && duplicate(k)));
         }
     }
     // A corrupt PNG: a clean error naming it, nothing written for it.

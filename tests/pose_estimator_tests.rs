@@ -593,6 +593,55 @@ fn the_consistency_score_follows_the_card_and_the_pytorch_outputs() {
     assert!(err.contains("consistency_score_scale") && err.contains("kpt_nocs"), "{err}");
 }
 
+/// `min_score`: poses scored below it are left out and named with their score; the others
+/// come out as without the field, in order; a bad value is an error naming the field.
+#[test]
+fn poses_below_the_cards_min_score_are_left_out_and_counted() {
+    use tricons::pipeline::stages::{Detection, NotReported, estimate_detections};
+    let mut est = shipped();
+    let rec = open_recording(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/synthnocs-demo")).unwrap();
+    let frame = rec.read_frame(0).unwrap();
+    let ann = rec.read_annotations(0).unwrap().unwrap();
+    let label = ann.mask.unwrap();
+    // detection scores spread over (0, 1): some reported scores fall below the floor
+    let detections: Vec<Detection> = ann
+        .instances
+        .iter()
+        .enumerate()
+        .map(|(k, g)| Detection {
+            class: g.class,
+            score: 0.3 + 0.7 * (k as f64 + 1.0) / ann.instances.len() as f64,
+            box2d: None,
+            mask: label.data.iter().map(|&v| v == g.id).collect(),
+        })
+        .collect();
+    est.set_min_score(None);
+    let (all, skipped) = estimate_detections(&est, &frame, &detections, 3).unwrap();
+    assert!(skipped.is_empty() && all.len() == detections.len());
+    let floor = 0.6;
+    assert!(all.iter().any(|p| p.score < floor) && all.iter().any(|p| p.score >= floor), "scores {all:?}");
+    est.set_min_score(Some(floor));
+    let (kept, below) = estimate_detections(&est, &frame, &detections, 3).unwrap();
+    let want: Vec<_> = all.iter().filter(|p| p.score >= floor).cloned().collect();
+    assert_eq!(kept, want);
+    let below_want: Vec<_> = all
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.score < floor)
+        .map(|(k, p)| (k, NotReported::BelowMinScore(p.score)))
+        .collect();
+    assert_eq!(below, below_want);
+    assert!(below[0].1.to_string().contains("min_score"));
+
+    let dir = tempfile::tempdir().unwrap();
+    let card = copy_model(dir.path());
+    for bad in [serde_json::json!(1.0), serde_json::json!(-0.1)] {
+        edit_card(&card, |v| v["min_score"] = bad.clone());
+        let err = PoseEstimator::load(&card).unwrap_err().to_string();
+        assert!(err.contains("min_score"), "{err}");
+    }
+}
+
 /// The early pixel gather on a hand-made decoder tail (`fuzz/seeds/onnx_graph/pixel_tail.onnx`,
 /// written by fuzz/make_seeds.py): the Resize sampled, the four per-pixel nodes moved, the
 /// picked rows equal to the graph's as written, and an index outside the map an error.

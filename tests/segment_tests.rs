@@ -239,6 +239,7 @@ fn segmenter_matches_onnxruntime(cases: &[(&str, &str)]) {
     let mut seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
     seg.set_score_threshold(0.0);
     seg.set_duplicate_mask_iou(None);
+    seg.set_duplicate_mask_inside(None);
     let mut total = 0;
     for &(fixture_name, image) in cases {
         let fx = fixture(fixture_name);
@@ -315,6 +316,7 @@ fn raised_score_floor_keeps_exactly_the_detections_above_the_threshold() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut seg = Segmenter::load(&root.join("models/maskrcnn-light.card.json")).unwrap();
     seg.set_duplicate_mask_iou(None);
+    seg.set_duplicate_mask_inside(None);
     assert_eq!(seg.score_floor(), Some(0.05), "torchvision's box_score_thresh in the shipped graph");
     let (threshold, mask_t) = (seg.card().score_threshold, seg.card().mask_threshold);
     let mut kept_total = 0;

@@ -274,6 +274,7 @@ impl Pipeline {
                         match estimate.estimate(&work.frame, &work.detections) {
                             Ok(instances) => {
                                 stats.record(Stage::Pose, t.elapsed());
+                                stats.low_score_poses_dropped.store(estimate.low_scores_dropped(), Ordering::Relaxed);
                                 work.instances = instances;
                                 work.detections = Vec::new();
                                 if output.push(work).is_err() {

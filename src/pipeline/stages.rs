@@ -49,6 +49,11 @@ pub trait Estimate: Send {
     /// Poses of the frame's detections; a detection that cannot be estimated
     /// (too few depth pixels) is left out.
     fn estimate(&mut self, frame: &SourceFrame, detections: &[Detection]) -> Result<Vec<PredInstance>>;
+    /// Poses left unreported so far because their score lay below the pose card's
+    /// `min_score` (0 for a stage that never drops any).
+    fn low_scores_dropped(&self) -> u64 {
+        0
+    }
 }
 
 /// Detections from a Mask R-CNN on `frame`'s colour image: instances of a NOCS category
@@ -150,20 +155,42 @@ pub fn detections_from_annotations(ann: &FrameAnnotations) -> Option<Vec<Detecti
 pub struct PoseStage {
     estimator: PoseEstimator,
     seed: u64,
+    low_scores_dropped: u64,
 }
 
 impl PoseStage {
     /// Wraps a loaded estimator.
     pub fn new(estimator: PoseEstimator, seed: u64) -> PoseStage {
-        PoseStage { estimator, seed }
+        PoseStage { estimator, seed, low_scores_dropped: 0 }
     }
 }
 
-/// A skipped detection: its index and why.
-pub type SkippedDetection = (usize, Skipped);
+/// Why a detection has no reported pose.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NotReported {
+    /// The pose network could not run on it.
+    Skipped(Skipped),
+    /// Its reported score (given here) lies below the pose card's `min_score`.
+    BelowMinScore(f64),
+}
+
+impl std::fmt::Display for NotReported {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            NotReported::Skipped(Skipped::EmptyMask) => write!(f, "empty mask"),
+            NotReported::Skipped(Skipped::TooFewValidPixels(n)) => write!(f, "{n} valid pixels"),
+            NotReported::Skipped(Skipped::NonFiniteOutput) => write!(f, "non-finite network output"),
+            NotReported::BelowMinScore(score) => write!(f, "score {score:.3} below the card's min_score"),
+        }
+    }
+}
+
+/// A detection without a reported pose: its index and why.
+pub type SkippedDetection = (usize, NotReported);
 
 /// Poses of `detections` in `frame` with the point sampling seeded by `seed`;
-/// also returns each skipped instance's index and reason.
+/// also returns each unreported instance's index and reason (skipped by the network, or
+/// scored below the pose card's `min_score`).
 pub fn estimate_detections(
     estimator: &PoseEstimator,
     frame: &crate::frame::RgbdFrame,
@@ -175,15 +202,22 @@ pub fn estimate_detections(
     let (mut instances, mut skipped) = (Vec::new(), Vec::new());
     for (k, (d, o)) in detections.iter().zip(outcomes).enumerate() {
         match o {
-            Ok(e) => instances.push(PredInstance {
-                class: d.class,
-                score: estimator.score(&e, d.score),
-                camera_from_object: estimator.camera_from_object(&e, d.class),
-                size_m: e.size_m,
-                box2d: d.box2d,
-                mask: None,
-            }),
-            Err(why) => skipped.push((k, why)),
+            Ok(e) => {
+                let score = estimator.score(&e, d.score);
+                if estimator.card().min_score.is_some_and(|min| score < min) {
+                    skipped.push((k, NotReported::BelowMinScore(score)));
+                    continue;
+                }
+                instances.push(PredInstance {
+                    class: d.class,
+                    score,
+                    camera_from_object: estimator.camera_from_object(&e, d.class),
+                    size_m: e.size_m,
+                    box2d: d.box2d,
+                    mask: None,
+                })
+            }
+            Err(why) => skipped.push((k, NotReported::Skipped(why))),
         }
     }
     Ok((instances, skipped))
@@ -194,8 +228,14 @@ impl Estimate for PoseStage {
         let seed = crate::rng::mix_seed(&[self.seed, frame.seq]);
         let (instances, skipped) = estimate_detections(&self.estimator, &frame.frame, detections, seed)?;
         for (k, why) in skipped {
-            log::debug!("frame {} instance {k}: skipped ({why:?})", frame.id);
+            if matches!(why, NotReported::BelowMinScore(_)) {
+                self.low_scores_dropped += 1;
+            }
+            log::debug!("frame {} instance {k}: not reported ({why})", frame.id);
         }
         Ok(instances)
+    }
+    fn low_scores_dropped(&self) -> u64 {
+        self.low_scores_dropped
     }
 }

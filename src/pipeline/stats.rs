@@ -119,6 +119,8 @@ pub struct StatsSnapshot {
     pub frames_failed: u64,
     /// Detections the segmenter dropped as duplicates of another (card's `duplicate_mask_iou`).
     pub duplicate_detections_dropped: u64,
+    /// Poses not reported because their score lay below the pose card's `min_score`.
+    pub low_score_poses_dropped: u64,
     /// Published frames per second since the start.
     pub fps: f64,
     /// Published frames per second over the last five seconds.
@@ -192,6 +194,8 @@ pub struct PipelineStats {
     pub frames_failed: AtomicU64,
     /// Detections the segmenter dropped as duplicates.
     pub duplicate_detections_dropped: AtomicU64,
+    /// Poses below the pose card's `min_score`.
+    pub low_score_poses_dropped: AtomicU64,
     /// Source read errors.
     pub source_errors: AtomicU64,
     /// Successful reopens.
@@ -228,6 +232,7 @@ impl PipelineStats {
             frames_published: AtomicU64::new(0),
             frames_failed: AtomicU64::new(0),
             duplicate_detections_dropped: AtomicU64::new(0),
+            low_score_poses_dropped: AtomicU64::new(0),
             source_errors: AtomicU64::new(0),
             source_reopens: AtomicU64::new(0),
             stream_lines_dropped: AtomicU64::new(0),
@@ -329,6 +334,7 @@ impl PipelineStats {
             frames_dropped: queues.iter().map(|q| q.dropped).sum(),
             frames_failed: self.frames_failed.load(Ordering::Relaxed),
             duplicate_detections_dropped: self.duplicate_detections_dropped.load(Ordering::Relaxed),
+            low_score_poses_dropped: self.low_score_poses_dropped.load(Ordering::Relaxed),
             fps: if uptime_s > 0.0 { published as f64 / uptime_s } else { 0.0 },
             fps_recent: recent,
             source_errors: self.source_errors.load(Ordering::Relaxed),
@@ -377,6 +383,11 @@ impl StatsSnapshot {
                 "duplicate_detections_dropped_total",
                 self.duplicate_detections_dropped,
                 "Detections dropped as duplicates of a higher-scored one (mask IoU).",
+            ),
+            (
+                "low_score_poses_dropped_total",
+                self.low_score_poses_dropped,
+                "Poses not reported because their score lay below the pose card's min_score.",
             ),
             ("source_errors_total", self.source_errors, "Source read errors."),
             ("source_reopens_total", self.source_reopens, "Successful source reopens."),

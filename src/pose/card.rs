@@ -63,6 +63,12 @@ pub struct ModelCard {
     /// Needs the keypoint outputs. Chosen on SynthNOCS-val (tools/MODEL.md, E11).
     #[serde(default)]
     pub consistency_score_scale: Option<f64>,
+    /// When set, poses whose reported score (after the consistency factor) lies below it
+    /// are not reported, only counted: most of them sit on distractors or on parts of an
+    /// object (chosen on SynthNOCS-val, docs/results.md, "Score floor"). Absent (the
+    /// default): every pose is reported.
+    #[serde(default)]
+    pub min_score: Option<f64>,
 }
 
 /// The fit of [`ModelCard::rotation_from_keypoints`] and [`ModelCard::rotation_keypoint_blend`].
@@ -137,6 +143,11 @@ impl ModelCard {
             && !(scale > 0.0 && scale.is_finite())
         {
             return bad(format!("field `consistency_score_scale`: must be a positive number, found {scale}"));
+        }
+        if let Some(min) = card.min_score
+            && !(0.0..1.0).contains(&min)
+        {
+            return bad(format!("field `min_score`: must lie in [0, 1), found {min}"));
         }
         for (class, &w) in &card.rotation_keypoint_blend {
             if !(w > 0.0 && w < 1.0) {

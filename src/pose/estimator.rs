@@ -236,6 +236,11 @@ impl PoseEstimator {
         &self.card
     }
 
+    /// Replace the card's `min_score` (`None`: report every pose).
+    pub fn set_min_score(&mut self, min_score: Option<f64>) {
+        self.card.min_score = min_score;
+    }
+
     /// The pose to report for an instance of `class`: the head's rotation, for the card's
     /// `rotation_from_keypoints` classes the one solved from the keypoints, for its
     /// `rotation_keypoint_blend` classes the weighted chordal mean of the two (the head's

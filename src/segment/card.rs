@@ -122,6 +122,11 @@ pub struct SegmenterCard {
     /// ([`super::duplicates`]). Absent (a bare torchvision export): off.
     #[serde(default)]
     pub duplicate_mask_iou: Option<f32>,
+    /// Duplicate suppression by containment: a detection with more than this fraction of
+    /// its mask inside a higher-scored, kept one is dropped too (a part detected beside
+    /// its whole). Absent: off.
+    #[serde(default)]
+    pub duplicate_mask_inside: Option<f32>,
     /// Pixels by which each detection's mask is eroded before the pose stage samples its
     /// points ([`super::erode`]; segmentation outputs and AP keep the masks as predicted).
     /// Absent (a bare torchvision export): 0, off.
@@ -162,6 +167,7 @@ impl SegmenterCard {
             score_threshold: DEFAULT_SCORE_THRESHOLD,
             mask_threshold: DEFAULT_MASK_THRESHOLD,
             duplicate_mask_iou: None,
+            duplicate_mask_inside: None,
             pose_mask_erode_px: 0,
             pose_mask_max_radius_m: BTreeMap::new(),
             training: serde_json::Value::Null,
@@ -207,6 +213,11 @@ impl SegmenterCard {
             && !(iou > 0.0 && iou < 1.0)
         {
             return bad(format!("field `duplicate_mask_iou`: must lie in (0, 1), found {iou}"));
+        }
+        if let Some(inside) = card.duplicate_mask_inside
+            && !(inside > 0.0 && inside < 1.0)
+        {
+            return bad(format!("field `duplicate_mask_inside`: must lie in (0, 1), found {inside}"));
         }
         if card.pose_mask_erode_px > MAX_POSE_MASK_ERODE_PX {
             return bad(format!(
@@ -282,6 +293,12 @@ mod tests {
         }
         let e = card_with(r#", "duplicate_mask_iou": "high""#).unwrap_err().to_string();
         assert!(e.contains("duplicate_mask_iou"), "{e}");
+        assert_eq!(card_with("").unwrap().duplicate_mask_inside, None);
+        assert_eq!(card_with(r#", "duplicate_mask_inside": 0.5"#).unwrap().duplicate_mask_inside, Some(0.5));
+        for bad in ["0", "1", "-0.2", "1.5"] {
+            let e = card_with(&format!(r#", "duplicate_mask_inside": {bad}"#)).unwrap_err().to_string();
+            assert!(e.contains("duplicate_mask_inside"), "{e}");
+        }
     }
 
     #[test]

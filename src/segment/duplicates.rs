@@ -4,7 +4,35 @@
 //! under two labels (a bowl that is also a mug). With the card's
 //! `duplicate_mask_iou` set, [`suppress_duplicates`] keeps detections in descending
 //! score order and drops every one whose mask overlaps an already kept one by more
-//! than that IoU, whatever the two classes: greedy NMS on mask IoU.
+//! than that IoU, whatever the two classes: greedy NMS on mask IoU. With the card's
+//! `duplicate_mask_inside` set as well, a detection is also dropped when more than that
+//! fraction of its own mask lies inside a kept one: a part of an object (a camera's lens)
+//! detected beside the whole, whose IoU with the whole is small.
+
+/// When a detection is a duplicate of a kept, higher-ranked one.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DuplicateRule {
+    /// Their mask IoU exceeds this (`None`: never by IoU).
+    pub max_iou: Option<f64>,
+    /// The fraction of its mask's pixels inside the kept one exceeds this (`None`: never
+    /// by containment).
+    pub max_inside: Option<f64>,
+}
+
+impl DuplicateRule {
+    /// Whether the rule drops anything.
+    pub fn is_on(&self) -> bool {
+        self.max_iou.is_some() || self.max_inside.is_some()
+    }
+
+    /// Whether a mask of `pixels` pixels meeting a kept one of `kept_pixels` in `inter`
+    /// pixels is a duplicate of it.
+    fn is_duplicate(&self, pixels: usize, kept_pixels: usize, inter: usize) -> bool {
+        let union = pixels + kept_pixels - inter;
+        let over = |max: Option<f64>, den: usize| max.is_some_and(|m| den > 0 && inter as f64 / den as f64 > m);
+        over(self.max_iou, union) || over(self.max_inside, pixels)
+    }
+}
 
 /// The tight rectangle `[x0, y0, x1, y1)` of a mask's set pixels; `None` when empty.
 fn mask_rect(mask: &[bool], width: usize) -> Option<[usize; 4]> {
@@ -32,10 +60,10 @@ impl Summary {
     }
 }
 
-/// Mask IoU of `a` and `b` (row-major, `width` wide), scanning only where both
-/// rectangles meet. Two empty masks have IoU 0.
-fn iou(a: &[bool], sa: &Summary, b: &[bool], sb: &Summary, width: usize) -> f64 {
-    let (Some(ra), Some(rb)) = (sa.rect, sb.rect) else { return 0.0 };
+/// Pixels set in both `a` and `b` (row-major, `width` wide), scanning only where both
+/// rectangles meet.
+fn intersection(a: &[bool], sa: &Summary, b: &[bool], sb: &Summary, width: usize) -> usize {
+    let (Some(ra), Some(rb)) = (sa.rect, sb.rect) else { return 0 };
     let (x0, y0, x1, y1) = (ra[0].max(rb[0]), ra[1].max(rb[1]), ra[2].min(rb[2]), ra[3].min(rb[3]));
     let mut inter = 0usize;
     if x0 < x1 && y0 < y1 {
@@ -44,15 +72,13 @@ fn iou(a: &[bool], sa: &Summary, b: &[bool], sb: &Summary, width: usize) -> f64 
             inter += ra.iter().zip(rb).filter(|(p, q)| **p && **q).count();
         }
     }
-    let union = sa.pixels + sb.pixels - inter;
-    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
+    inter
 }
 
 /// Which of `masks` (each `width * height`, scores in `scores`) survive greedy mask NMS
-/// at `max_iou`: indices in descending score order (ties: the earlier index first). A
-/// detection is dropped when its mask IoU with a kept, higher-ranked one exceeds
-/// `max_iou`.
-pub fn keep_after_mask_nms(masks: &[&[bool]], scores: &[f32], width: usize, max_iou: f64) -> Vec<usize> {
+/// under `rule`: indices in descending score order (ties: the earlier index first). A
+/// detection is dropped when the rule finds it a duplicate of a kept, higher-ranked one.
+pub fn keep_after_mask_nms(masks: &[&[bool]], scores: &[f32], width: usize, rule: DuplicateRule) -> Vec<usize> {
     let mut order: Vec<usize> = (0..masks.len().min(scores.len())).collect();
     order.sort_by(|&i, &j| scores[j].total_cmp(&scores[i]).then(i.cmp(&j)));
     if width == 0 {
@@ -61,7 +87,11 @@ pub fn keep_after_mask_nms(masks: &[&[bool]], scores: &[f32], width: usize, max_
     let summaries: Vec<Summary> = masks.iter().map(|m| Summary::of(m, width)).collect();
     let mut kept: Vec<usize> = Vec::with_capacity(order.len());
     for i in order {
-        let duplicate = kept.iter().any(|&k| iou(masks[i], &summaries[i], masks[k], &summaries[k], width) > max_iou);
+        let (si, pixels) = (&summaries[i], summaries[i].pixels);
+        let duplicate = kept.iter().any(|&k| {
+            let inter = intersection(masks[i], si, masks[k], &summaries[k], width);
+            rule.is_duplicate(pixels, summaries[k].pixels, inter)
+        });
         if !duplicate {
             kept.push(i);
         }
@@ -71,11 +101,11 @@ pub fn keep_after_mask_nms(masks: &[&[bool]], scores: &[f32], width: usize, max_
 
 /// Drop the duplicates among `instances` (see the module doc); the survivors stay in
 /// their original order. Returns how many were dropped.
-pub fn suppress_duplicates(instances: &mut Vec<super::SegInstance>, width: usize, max_iou: f64) -> usize {
+pub fn suppress_duplicates(instances: &mut Vec<super::SegInstance>, width: usize, rule: DuplicateRule) -> usize {
     let masks: Vec<&[bool]> = instances.iter().map(|d| d.mask.as_slice()).collect();
     let scores: Vec<f32> = instances.iter().map(|d| d.score).collect();
     let mut keep = vec![false; instances.len()];
-    for i in keep_after_mask_nms(&masks, &scores, width, max_iou) {
+    for i in keep_after_mask_nms(&masks, &scores, width, rule) {
         keep[i] = true;
     }
     let before = instances.len();
@@ -88,6 +118,17 @@ pub fn suppress_duplicates(instances: &mut Vec<super::SegInstance>, width: usize
 mod tests {
     use super::*;
     use crate::metrics::mask_ap::mask_iou;
+
+    fn by_iou(max_iou: f64) -> DuplicateRule {
+        DuplicateRule { max_iou: Some(max_iou), max_inside: None }
+    }
+
+    /// Mask IoU through [`intersection`].
+    fn iou(a: &[bool], sa: &Summary, b: &[bool], sb: &Summary, w: usize) -> f64 {
+        let inter = intersection(a, sa, b, sb, w);
+        let union = sa.pixels + sb.pixels - inter;
+        if union == 0 { 0.0 } else { inter as f64 / union as f64 }
+    }
 
     /// A `w x h` mask with the rectangle `[x0, x1) x [y0, y1)` set.
     fn rect(w: usize, h: usize, x0: usize, y0: usize, x1: usize, y1: usize) -> Vec<bool> {
@@ -125,17 +166,17 @@ mod tests {
         let touching = rect(w, h, 3, 0, 8, 5); // IoU 10/40 = 0.25 with a
         let masks: Vec<&[bool]> = vec![&a_dup, &a, &b, &touching];
         // a outranks its duplicate; b and `touching` overlap nothing above 0.5.
-        assert_eq!(keep_after_mask_nms(&masks, &[0.7, 0.9, 0.6, 0.8], w, 0.5), vec![1, 3, 2]);
+        assert_eq!(keep_after_mask_nms(&masks, &[0.7, 0.9, 0.6, 0.8], w, by_iou(0.5)), vec![1, 3, 2]);
         // The threshold is strict: at exactly the IoU both stay.
-        assert_eq!(keep_after_mask_nms(&masks, &[0.7, 0.9, 0.6, 0.8], w, 0.8), vec![1, 3, 0, 2]);
+        assert_eq!(keep_after_mask_nms(&masks, &[0.7, 0.9, 0.6, 0.8], w, by_iou(0.8)), vec![1, 3, 0, 2]);
         // Ties rank the earlier index first.
-        assert_eq!(keep_after_mask_nms(&[&a, &a], &[0.5, 0.5], w, 0.5), vec![0]);
+        assert_eq!(keep_after_mask_nms(&[&a, &a], &[0.5, 0.5], w, by_iou(0.5)), vec![0]);
         // A dropped detection suppresses nothing: c overlaps only the dropped a_dup2.
         let big = rect(w, h, 0, 0, 6, 10); // 60 px
         let mid = rect(w, h, 0, 2, 6, 10); // IoU 48/60 with big
         let low = rect(w, h, 0, 4, 6, 10); // IoU 36/60 with big, 36/48 with mid
         let masks: Vec<&[bool]> = vec![&big, &mid, &low];
-        assert_eq!(keep_after_mask_nms(&masks, &[0.9, 0.8, 0.7], w, 0.7), vec![0, 2]);
+        assert_eq!(keep_after_mask_nms(&masks, &[0.9, 0.8, 0.7], w, by_iou(0.7)), vec![0, 2]);
     }
 
     #[test]
@@ -153,7 +194,7 @@ mod tests {
                 scores.push(1.0 - k as f32 / 16.0); // distinct
             }
             let refs: Vec<&[bool]> = masks.iter().map(Vec::as_slice).collect();
-            let kept = keep_after_mask_nms(&refs, &scores, w, 0.5);
+            let kept = keep_after_mask_nms(&refs, &scores, w, by_iou(0.5));
             for (x, &i) in kept.iter().enumerate() {
                 for &j in &kept[x + 1..] {
                     assert!(mask_iou(&masks[i], &masks[j]) <= 0.5);
@@ -167,11 +208,37 @@ mod tests {
             let rev_refs: Vec<&[bool]> = refs.iter().rev().copied().collect();
             let rev_scores: Vec<f32> = scores.iter().rev().copied().collect();
             let mut back: Vec<usize> =
-                keep_after_mask_nms(&rev_refs, &rev_scores, w, 0.5).into_iter().map(|i| n - 1 - i).collect();
+                keep_after_mask_nms(&rev_refs, &rev_scores, w, by_iou(0.5)).into_iter().map(|i| n - 1 - i).collect();
             back.sort_unstable();
             let mut sorted = kept.clone();
             sorted.sort_unstable();
             assert_eq!(back, sorted);
         }
+    }
+
+    #[test]
+    fn containment_drops_a_part_beside_its_whole() {
+        let (w, h) = (12, 10);
+        let whole = rect(w, h, 0, 0, 10, 10); // 100 px
+        let part = rect(w, h, 2, 2, 6, 6); // 16 px, all inside: IoU 0.16
+        let half_out = rect(w, h, 8, 0, 12, 4); // 16 px, 8 inside: IoU 8/108
+        let masks: Vec<&[bool]> = vec![&whole, &part, &half_out];
+        let scores = [0.9, 0.8, 0.7];
+        // IoU alone keeps the part.
+        assert_eq!(keep_after_mask_nms(&masks, &scores, w, by_iou(0.3)), vec![0, 1, 2]);
+        let rule = DuplicateRule { max_iou: Some(0.3), max_inside: Some(0.5) };
+        assert_eq!(keep_after_mask_nms(&masks, &scores, w, rule), vec![0, 2]);
+        // Strict: exactly half inside stays; containment alone works without the IoU rule.
+        let inside_only = DuplicateRule { max_iou: None, max_inside: Some(0.5) };
+        assert_eq!(keep_after_mask_nms(&masks, &scores, w, inside_only), vec![0, 2]);
+        let inside_049 = DuplicateRule { max_iou: None, max_inside: Some(0.49) };
+        assert_eq!(keep_after_mask_nms(&masks, &scores, w, inside_049), vec![0]);
+        // Containment looks one way: a whole scored above its part is not inside it.
+        assert_eq!(keep_after_mask_nms(&masks, &[0.5, 0.9, 0.7], w, inside_only), vec![1, 2, 0]);
+        // Off: nothing dropped; an empty mask is nobody's duplicate.
+        assert!(!DuplicateRule::default().is_on());
+        assert_eq!(keep_after_mask_nms(&masks, &scores, w, DuplicateRule::default()), vec![0, 1, 2]);
+        let empty = vec![false; w * h];
+        assert_eq!(keep_after_mask_nms(&[&whole, &empty], &[0.9, 0.8], w, inside_only), vec![0, 1]);
     }
 }

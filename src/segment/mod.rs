@@ -377,8 +377,8 @@ impl Segmenter {
     /// Detections scoring at least the card's threshold, with thresholded masks. The graph
     /// runs with its score floor raised to that threshold, so NMS and the mask head only
     /// work on what is kept (the same detections as filtering the unchanged graph's).
-    /// With the card's `duplicate_mask_iou`, duplicates across classes are then dropped
-    /// ([`duplicates`]; counted in [`Self::duplicates_dropped`]).
+    /// With the card's `duplicate_mask_iou` or `duplicate_mask_inside`, duplicates across
+    /// classes are then dropped ([`duplicates`]; counted in [`Self::duplicates_dropped`]).
     pub fn segment(&self, image: &ColorImage) -> Result<Vec<SegInstance>> {
         let raw = self.detect(image, Some(self.card.score_threshold))?;
         let (w, h) = (image.width as usize, image.height as usize);
@@ -397,8 +397,9 @@ impl Segmenter {
                     .unwrap_or_else(|| vec![false; w * h]),
             })
             .collect();
-        if let Some(iou) = self.card.duplicate_mask_iou {
-            let dropped = duplicates::suppress_duplicates(&mut instances, w, f64::from(iou));
+        let rule = self.duplicate_rule();
+        if rule.is_on() {
+            let dropped = duplicates::suppress_duplicates(&mut instances, w, rule);
             self.duplicates_dropped.fetch_add(dropped as u64, Ordering::Relaxed);
         }
         Ok(instances)
@@ -431,9 +432,23 @@ impl Segmenter {
         self.duplicates_dropped.load(Ordering::Relaxed)
     }
 
-    /// Turn duplicate suppression on at `iou` or off (`None`), overriding the card.
+    /// Turn duplicate suppression by mask IoU on at `iou` or off (`None`), overriding the card.
     pub fn set_duplicate_mask_iou(&mut self, iou: Option<f32>) {
         self.card.duplicate_mask_iou = iou;
+    }
+
+    /// Turn duplicate suppression by containment on at `inside` or off (`None`), overriding
+    /// the card.
+    pub fn set_duplicate_mask_inside(&mut self, inside: Option<f32>) {
+        self.card.duplicate_mask_inside = inside;
+    }
+
+    /// The duplicate rule of the card (as overridden).
+    pub fn duplicate_rule(&self) -> duplicates::DuplicateRule {
+        duplicates::DuplicateRule {
+            max_iou: self.card.duplicate_mask_iou.map(f64::from),
+            max_inside: self.card.duplicate_mask_inside.map(f64::from),
+        }
     }
 
     /// Run the plan [`Self::segment`] runs once on `image`, timing every node: per node,

@@ -107,10 +107,10 @@ def test_cli_random_init_writes_onnx_and_card(tmp_path, monkeypatch):
     metrics.write_text(json.dumps({"mean": {"5deg2cm": 12.5}}))
     out = tmp_path / "sub" / "m.onnx"
     assert export.main(["--config", str(cfg_file), "--random-init", "5", "--out", str(out),
-                        "--metrics", f"published={metrics}", "--consistency-score-scale", "0.3",
+                        "--metrics", f"published={metrics}", "--consistency-score-scale", "0.3", "--min-score", "0.6",
                         "--rotation-from-keypoints", "bowl", "--rotation-keypoint-blend", "mug=0.5,camera=0.25"]) == 0
     card = json.loads((tmp_path / "sub" / "m.card.json").read_text())
-    assert card["consistency_score_scale"] == 0.3
+    assert card["consistency_score_scale"] == 0.3 and card["min_score"] == 0.6
     assert card["rotation_from_keypoints"] == ["bowl"]
     assert card["rotation_keypoint_blend"] == {"camera": 0.25, "mug": 0.5}
     data = out.read_bytes()

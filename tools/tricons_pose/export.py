@@ -212,7 +212,8 @@ def standard_op_types(onnx_bytes: bytes) -> list[str]:
 def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dict, check: dict | None,
                metrics: Dict[str, dict], n_params: int, rotation_from_keypoints: Sequence[str] = (),
                consistency_score_scale: float | None = None,
-               rotation_keypoint_blend: Dict[str, float] | None = None) -> dict:
+               rotation_keypoint_blend: Dict[str, float] | None = None,
+               min_score: float | None = None) -> dict:
     """The model card (docs/formats.md, "Model card")."""
     from .predict import check_blend
 
@@ -223,6 +224,8 @@ def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dic
     check_blend(blend, rotation_from_keypoints)
     if consistency_score_scale is not None and not (0 < consistency_score_scale < float("inf")):
         raise ValueError(f"consistency_score_scale: must be a positive number, found {consistency_score_scale}")
+    if min_score is not None and not 0 <= min_score < 1:
+        raise ValueError(f"min_score: must lie in [0, 1), found {min_score}")
     crop, n, m = cfg.crop_size, cfg.n_points, cfg.n_keypoints
     return {
         "format": CARD_FORMAT,
@@ -271,6 +274,7 @@ def build_card(cfg: ModelConfig, onnx_name: str, onnx_bytes: bytes, weights: dic
         "rotation_from_keypoints": [c for c in CLASSES if c in set(rotation_from_keypoints)],
         **({"rotation_keypoint_blend": {c: blend[c] for c in CLASSES if c in blend}} if blend else {}),
         **({} if consistency_score_scale is None else {"consistency_score_scale": consistency_score_scale}),
+        **({} if min_score is None else {"min_score": min_score}),
         "n_keypoints": m,
         "parameters": n_params,
         "config": cfg.to_dict(),
@@ -353,7 +357,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="the runtime reports each pose's score times exp(-r / SCALE), r the disagreement "
                         "between the pose head and the keypoints in box diagonals (card field; the shipped "
                         "card: 0.3; tools/MODEL.md, E11)")
+    p.add_argument("--min-score", type=float, metavar="SCORE",
+                   help="the runtime leaves out poses whose reported score lies below SCORE, counting them "
+                        "(card field; the shipped card: 0.6; docs/results.md, \"Score floor\")")
     args = p.parse_args(argv)
+    if args.min_score is not None and not 0 <= args.min_score < 1:
+        p.error(f"--min-score: must lie in [0, 1), found {args.min_score}")
     scale = args.consistency_score_scale
     if scale is not None and not 0 < scale < float("inf"):
         p.error(f"--consistency-score-scale: must be a positive number, found {scale}")
@@ -398,7 +407,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     n_params = sum(t.numel() for t in model.parameters())
     card = build_card(cfg, out.name, onnx_bytes, weights, check, metrics, n_params,
-                      parse_classes(args.rotation_from_keypoints), args.consistency_score_scale, blend)
+                      parse_classes(args.rotation_from_keypoints), args.consistency_score_scale, blend,
+                      args.min_score)
     write_atomic(out, onnx_bytes)
     write_atomic(card_path(out), (json.dumps(card, indent=2) + "\n").encode("utf-8"))
     msg = f"{out} ({len(onnx_bytes) / 1e6:.2f} MB, {n_params} parameters) + {card_path(out).name}"

@@ -9,9 +9,9 @@ use tricons::metrics::{EvalConfig, IouMode, evaluate_recording};
 use tricons::output::overlay::draw_overlay;
 use tricons::output::predictions::{FramePredictions, write_predictions};
 use tricons::pipeline::stages::{
-    Detection, detections_from_annotations, detections_from_segmenter, estimate_detections,
+    Detection, NotReported, detections_from_annotations, detections_from_segmenter, estimate_detections,
 };
-use tricons::pose::{PoseEstimator, Skipped};
+use tricons::pose::PoseEstimator;
 use tricons::recording::open_recording_with;
 use tricons::segment::Segmenter;
 use tricons::segment::card::MAX_POSE_MASK_ERODE_PX;
@@ -30,6 +30,7 @@ use crate::source_args::BagTopicArgs;
     tricons replay --recording data/synthnocs-test --overlays data/overlays --iou corrected\n  \
     tricons replay --masks gt                        # ground-truth masks: the pose model alone\n  \
     tricons replay --pose-mask-erode 0 --keep-depth-outliers  # the segmenter's masks as predicted\n  \
+    tricons replay --keep-low-scores                 # every pose, whatever the pose card's min_score\n  \
     tricons replay --recording NOCS/Real/test/scene_1 --masks results:NOCS/segmentation_results/real_test\n  \
     tricons replay --recording bag.mcap --mcap poses.mcap  # a ROS 2 bag in (RealSense topics), MCAP out\n  \
     tricons replay --recording bag.mcap --color-topic /cam/color/image_raw/compressed --depth-topic /cam/depth\n\n\
@@ -60,6 +61,10 @@ pub struct Args {
     /// `pose_mask_max_radius_m` says.
     #[arg(long)]
     keep_depth_outliers: bool,
+    /// Report every pose, also those scored below the pose card's `min_score` (always so
+    /// with `--masks gt`).
+    #[arg(long)]
+    keep_low_scores: bool,
     /// Predictions to write (JSON Lines) [default: data/replay/<recording name>.jsonl].
     #[arg(long)]
     out: Option<PathBuf>,
@@ -100,9 +105,13 @@ pub fn run(args: Args) -> Result<()> {
         .with_context(|| "opening the recording (--recording)")?;
     let t_load = Instant::now();
     let threads = crate::common::threads(args.threads);
-    let estimator = PoseEstimator::load(&args.model)
+    let mut estimator = PoseEstimator::load(&args.model)
         .and_then(|e| e.with_threads(threads))
         .with_context(|| "loading the pose model (--model)")?;
+    // Ground-truth masks evaluate the pose model alone: every mask is an object.
+    if args.keep_low_scores || matches!(args.masks, MaskSource::Gt) {
+        estimator.set_min_score(None);
+    }
     log::info!(
         "model {} ({}) loaded in {:.2} s, {threads} thread(s); {}",
         estimator.card_path().display(),
@@ -155,7 +164,7 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
     };
     let bar = progress::bar(rec.len(), "replay");
-    let (mut frames, mut skipped, mut estimated) = (Vec::with_capacity(rec.len()), 0usize, 0usize);
+    let (mut frames, mut skipped, mut low_scores, mut estimated) = (Vec::with_capacity(rec.len()), 0, 0, 0usize);
     let t_run = Instant::now();
     for i in 0..rec.len() {
         let frame = rec.read_frame(i)?;
@@ -183,9 +192,12 @@ pub fn run(args: Args) -> Result<()> {
         let seed = tricons::rng::mix_seed(&[args.seed, i as u64]);
         let (instances, skips) = estimate_detections(&estimator, &frame, &detections, seed)?;
         estimated += instances.len();
-        skipped += skips.len();
         for (k, why) in skips {
-            log::debug!("frame {} instance {k}: skipped ({})", rec.frame_id(i), describe(&why));
+            match why {
+                NotReported::BelowMinScore(_) => low_scores += 1,
+                NotReported::Skipped(_) => skipped += 1,
+            }
+            log::debug!("frame {} instance {k}: not reported ({why})", rec.frame_id(i));
         }
         if let Some(dir) = &args.overlays {
             let png = draw_overlay(&frame, &instances)?;
@@ -210,8 +222,10 @@ pub fn run(args: Args) -> Result<()> {
         use tricons::output::sink::Sink;
         sink.close()?;
     }
+    let min_score = estimator.card().min_score.map_or_else(|| "off".to_string(), |m| format!("{m}"));
     log::info!(
-        "{} frames, {estimated} instances estimated, {skipped} skipped (too few valid pixels), {:.1} ms/frame -> {}",
+        "{} frames, {estimated} instances reported, {skipped} skipped (too few valid pixels), {low_scores} below the \
+         pose card's min_score ({min_score}), {:.1} ms/frame -> {}",
         frames.len(),
         1e3 * secs / frames.len().max(1) as f64,
         out.display()
@@ -235,12 +249,4 @@ fn default_out(recording: &Path) -> PathBuf {
     let name = if recording.is_file() { recording.file_stem() } else { recording.file_name() };
     let name = name.map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "replay".into());
     PathBuf::from("data/replay").join(format!("{name}.jsonl"))
-}
-
-fn describe(s: &Skipped) -> String {
-    match s {
-        Skipped::EmptyMask => "empty mask".into(),
-        Skipped::TooFewValidPixels(n) => format!("{n} valid pixels"),
-        Skipped::NonFiniteOutput => "non-finite network output".into(),
-    }
 }

@@ -51,7 +51,7 @@ pub struct Args {
     /// Only the first N frames of the recording.
     #[arg(long)]
     limit: Option<usize>,
-    /// Keep detections the card's duplicate suppression (`duplicate_mask_iou`) would drop.
+    /// Keep detections the card's duplicate suppression (`duplicate_mask_iou`, `duplicate_mask_inside`) would drop.
     #[arg(long)]
     keep_duplicates: bool,
     /// Write the ground-truth evaluation (AP, detection counts) as JSON here.
@@ -69,6 +69,7 @@ struct Evaluation {
     detections: usize,
     detections_per_object: f64,
     duplicate_mask_iou: Option<f32>,
+    duplicate_mask_inside: Option<f32>,
     duplicates_dropped: u64,
     /// bbox_AP50 .. mask_AP75, percent.
     ap: std::collections::BTreeMap<String, Option<f64>>,
@@ -83,6 +84,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     if args.keep_duplicates {
         seg.set_duplicate_mask_iou(None);
+        seg.set_duplicate_mask_inside(None);
     }
     log::info!("segmenter {} loaded in {:.2} s", seg.onnx_path().display(), t_load.elapsed().as_secs_f64());
     // (frame id, loader) pairs: images or recording frames.
@@ -171,10 +173,18 @@ pub fn run(args: Args) -> Result<()> {
             detections,
             detections_per_object: detections as f64 / objects.max(1) as f64,
             duplicate_mask_iou: seg.card().duplicate_mask_iou,
+            duplicate_mask_inside: seg.card().duplicate_mask_inside,
             duplicates_dropped: seg.duplicates_dropped(),
             ap: segmentation_ap(&eval_frames).into_iter().collect(),
         };
-        let dup = eval.duplicate_mask_iou.map_or_else(|| "off".to_string(), |t| format!("mask IoU > {t}"));
+        let dup = match (eval.duplicate_mask_iou, eval.duplicate_mask_inside) {
+            (None, None) => "off".to_string(),
+            (iou, inside) => [iou.map(|t| format!("mask IoU > {t}")), inside.map(|t| format!("inside > {t}"))]
+                .into_iter()
+                .flatten()
+                .collect::<Vec<_>>()
+                .join(" or "),
+        };
         println!(
             "{} frames: {} detections of NOCS classes for {} objects ({:.2} per object); duplicate suppression {dup}: {} dropped",
             eval.frames, eval.detections, eval.objects, eval.detections_per_object, eval.duplicates_dropped
