@@ -483,3 +483,33 @@ fn the_pose_stage_gets_the_cards_eroded_masks_without_depth_outliers() {
     let plain = detections_from_segmenter(&seg, &frame).unwrap();
     assert!(plain.iter().zip(&raw).all(|(d, r)| d.mask == r.mask));
 }
+
+/// A label the card maps to no NOCS category (a trained "other" class; here the shipped
+/// model's camera renamed) is segmented like any other and takes part in the duplicate
+/// suppression, then `segment_nocs` leaves it out and counts it.
+#[test]
+fn labels_of_no_nocs_class_are_segmented_then_left_out_and_counted() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (card, onnx) = tricons::segment::card::resolve(&root.join("models/maskrcnn-light.card.json")).unwrap();
+    let image = root.join("tests/data/synthnocs-demo/000003_color.png");
+    let img = tricons::image_io::read_color_png(&image, tricons::image_io::SizeLimit::Capped).unwrap();
+    let shipped = Segmenter::load_with_card(&onnx, card.clone()).unwrap();
+    let before = shipped.segment(&img).unwrap();
+    let camera = before.iter().find(|d| d.class_name.as_deref() == Some("camera")).expect("a camera on frame 3");
+    let mut renamed = card;
+    renamed.labels.insert(camera.label.to_string(), "other".into());
+    assert_eq!(renamed.non_nocs_classes(), vec!["other"]);
+    let seg = Segmenter::load_with_card(&onnx, renamed).unwrap();
+    let all = seg.segment(&img).unwrap();
+    assert_eq!(all.len(), before.len(), "renaming a class changes no detection");
+    for (a, b) in all.iter().zip(&before) {
+        assert_eq!((a.label, a.score, &a.mask), (b.label, b.score, &b.mask));
+    }
+    let others = all.iter().filter(|d| d.class_name.as_deref() == Some("other")).count();
+    assert!(others >= 1 && all.iter().all(|d| (d.category.is_none()) == (d.class_name.as_deref() == Some("other"))));
+    let nocs = seg.segment_nocs(&img).unwrap();
+    assert_eq!(nocs.len(), all.len() - others);
+    assert!(nocs.iter().all(|(c, d)| d.category == Some(*c)));
+    assert_eq!(seg.not_nocs_dropped(), others as u64);
+    assert_eq!(shipped.card().non_nocs_classes(), Vec::<&str>::new());
+}

@@ -4,6 +4,7 @@
 use std::path::Path;
 use tricons::Category;
 use tricons::frame::Intrinsics;
+use tricons::image_io::{SizeLimit, read_label_png};
 use tricons::recording::open_recording;
 use tricons::rng::Rng;
 use tricons::synth::mesh::TAG_HANDLE;
@@ -256,4 +257,50 @@ fn generate_is_byte_identical_and_readable() {
         std::fs::read(a.path().join("000000_color.png")).ok(),
         std::fs::read(c.path().join("000000_color.png")).ok()
     );
+}
+
+#[test]
+fn distractor_masks_cover_visible_distractors_and_change_nothing_else() {
+    let base = SynthConfig {
+        intrinsics: Intrinsics { width: 320, height: 240, fx: 295.5, fy: 295.1, cx: 161.3, cy: 122.1 },
+        min_visible_px: 60,
+        max_distractors: 8,
+        ..SynthConfig::default()
+    };
+    let cfg = SynthConfig { distractor_masks: true, ..base.clone() };
+    let mut seen = 0;
+    for i in 0..8u64 {
+        let plain = render_frame(&base, 4, i);
+        let f = render_frame(&cfg, 4, i);
+        assert!(plain.distractors.is_none());
+        assert_eq!(f.frame, plain.frame, "frame {i}: the distractor mask changed the images");
+        assert_eq!(f.annotations, plain.annotations, "frame {i}: the distractor mask changed the annotations");
+        let dis = f.distractors.expect("distractor mask asked for");
+        let objects = f.annotations.mask.expect("mask");
+        assert_eq!((dis.width, dis.height), (objects.width, objects.height));
+        let mut counts = [0usize; 256];
+        for (d, o) in dis.data.iter().zip(&objects.data) {
+            counts[usize::from(*d)] += 1;
+            assert!(*d == 0 || *o == 0, "frame {i}: a pixel is both an object and a distractor");
+        }
+        let n = counts[1..].iter().take_while(|&&c| c > 0).count();
+        assert!(counts[n + 1..].iter().all(|&c| c == 0), "frame {i}: distractor ids are not 1..=n");
+        assert!(counts[1..=n].iter().all(|&c| c >= cfg.min_visible_px), "frame {i}: a distractor below the floor");
+        seen += n;
+    }
+    assert!(seen > 0, "no visible distractor in 8 frames of up to 8 each");
+
+    // generate writes {id}_distractors.png beside byte-identical frame files
+    let (a, b) = (tempfile::tempdir().expect("tmp"), tempfile::tempdir().expect("tmp"));
+    generate(a.path(), &base, 4, 2, false, &|_| {}).expect("generate plain");
+    generate(b.path(), &cfg, 4, 2, false, &|_| {}).expect("generate with distractor masks");
+    let (fa, fb) = (read_all(a.path()), read_all(b.path()));
+    let without: Vec<_> = fb.iter().filter(|(n, _)| !n.ends_with("_distractors.png")).cloned().collect();
+    assert!(fa == without, "the other files differ");
+    assert_eq!(fb.len(), fa.len() + 2);
+    for i in 0..2u64 {
+        let path = b.path().join(format!("{i:06}_distractors.png"));
+        let got = read_label_png(&path, SizeLimit::like(320, 240, "test")).expect("read");
+        assert_eq!(Some(got), render_frame(&cfg, 4, i).distractors);
+    }
 }

@@ -250,6 +250,9 @@ impl Pipeline {
                                     stats
                                         .duplicate_detections_dropped
                                         .fetch_max(segment.duplicates_dropped(), Ordering::Relaxed);
+                                    stats
+                                        .not_nocs_detections_dropped
+                                        .fetch_max(segment.not_nocs_dropped(), Ordering::Relaxed);
                                     Some(Work { frame, detections, instances: Vec::new() })
                                 }
                                 Err(e) => {

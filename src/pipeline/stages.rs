@@ -36,6 +36,12 @@ pub trait Segment: Send {
     fn duplicates_dropped(&self) -> u64 {
         0
     }
+    /// Detections of no NOCS category (a segmenter's "other") left out so far, after they
+    /// took part in the duplicate suppression (0 for a stage that has none). Workers made by
+    /// [`Segment::fork`] share one count.
+    fn not_nocs_dropped(&self) -> u64 {
+        0
+    }
     /// Another worker of this stage, sharing its model, so that several frames are
     /// segmented at once ([`crate::pipeline::PipelineBuilder::segment_workers`]); `None`
     /// (the default) when the stage cannot run side by side with itself.
@@ -57,20 +63,17 @@ pub trait Estimate: Send {
 }
 
 /// Detections from a Mask R-CNN on `frame`'s colour image: instances of a NOCS category
-/// only, each mask as the pose stage takes it ([`Segmenter::pose_mask`]: eroded and
-/// without depth outliers when the card says so).
+/// only ([`Segmenter::segment_nocs`]), each mask as the pose stage takes it
+/// ([`Segmenter::pose_mask`]: eroded and without depth outliers when the card says so).
 pub fn detections_from_segmenter(segmenter: &Segmenter, frame: &RgbdFrame) -> Result<Vec<Detection>> {
     Ok(segmenter
-        .segment(&frame.color)?
+        .segment_nocs(&frame.color)?
         .into_iter()
-        .filter_map(|d| {
-            let class = d.category?;
-            Some(Detection {
-                class,
-                score: f64::from(d.score),
-                box2d: Some(d.box_xyxy.map(f64::from)),
-                mask: segmenter.pose_mask(d.mask, frame, class),
-            })
+        .map(|(class, d)| Detection {
+            class,
+            score: f64::from(d.score),
+            box2d: Some(d.box_xyxy.map(f64::from)),
+            mask: segmenter.pose_mask(d.mask, frame, class),
         })
         .collect())
 }
@@ -82,6 +85,9 @@ impl Segment for Segmenter {
     fn duplicates_dropped(&self) -> u64 {
         Segmenter::duplicates_dropped(self)
     }
+    fn not_nocs_dropped(&self) -> u64 {
+        Segmenter::not_nocs_dropped(self)
+    }
 }
 
 /// A Mask R-CNN shared by several segment workers: its plans are built once and each
@@ -92,6 +98,9 @@ impl Segment for std::sync::Arc<Segmenter> {
     }
     fn duplicates_dropped(&self) -> u64 {
         Segmenter::duplicates_dropped(self)
+    }
+    fn not_nocs_dropped(&self) -> u64 {
+        Segmenter::not_nocs_dropped(self)
     }
     fn fork(&self) -> Option<Box<dyn Segment>> {
         Some(Box::new(std::sync::Arc::clone(self)))

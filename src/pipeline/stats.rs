@@ -119,6 +119,9 @@ pub struct StatsSnapshot {
     pub frames_failed: u64,
     /// Detections the segmenter dropped as duplicates of another (card's `duplicate_mask_iou`).
     pub duplicate_detections_dropped: u64,
+    /// Detections of no NOCS category (a segmenter's "other") left out after the duplicate
+    /// suppression.
+    pub not_nocs_detections_dropped: u64,
     /// Poses not reported because their score lay below the pose card's `min_score`.
     pub low_score_poses_dropped: u64,
     /// Published frames per second since the start.
@@ -194,6 +197,8 @@ pub struct PipelineStats {
     pub frames_failed: AtomicU64,
     /// Detections the segmenter dropped as duplicates.
     pub duplicate_detections_dropped: AtomicU64,
+    /// Detections of no NOCS category left out.
+    pub not_nocs_detections_dropped: AtomicU64,
     /// Poses below the pose card's `min_score`.
     pub low_score_poses_dropped: AtomicU64,
     /// Source read errors.
@@ -232,6 +237,7 @@ impl PipelineStats {
             frames_published: AtomicU64::new(0),
             frames_failed: AtomicU64::new(0),
             duplicate_detections_dropped: AtomicU64::new(0),
+            not_nocs_detections_dropped: AtomicU64::new(0),
             low_score_poses_dropped: AtomicU64::new(0),
             source_errors: AtomicU64::new(0),
             source_reopens: AtomicU64::new(0),
@@ -334,6 +340,7 @@ impl PipelineStats {
             frames_dropped: queues.iter().map(|q| q.dropped).sum(),
             frames_failed: self.frames_failed.load(Ordering::Relaxed),
             duplicate_detections_dropped: self.duplicate_detections_dropped.load(Ordering::Relaxed),
+            not_nocs_detections_dropped: self.not_nocs_detections_dropped.load(Ordering::Relaxed),
             low_score_poses_dropped: self.low_score_poses_dropped.load(Ordering::Relaxed),
             fps: if uptime_s > 0.0 { published as f64 / uptime_s } else { 0.0 },
             fps_recent: recent,
@@ -383,6 +390,11 @@ impl StatsSnapshot {
                 "duplicate_detections_dropped_total",
                 self.duplicate_detections_dropped,
                 "Detections dropped as duplicates of a higher-scored one (mask IoU).",
+            ),
+            (
+                "not_nocs_detections_dropped_total",
+                self.not_nocs_detections_dropped,
+                "Detections of no NOCS category (a segmenter's other class) left out after duplicate suppression.",
             ),
             (
                 "low_score_poses_dropped_total",

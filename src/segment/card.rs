@@ -248,6 +248,18 @@ impl SegmenterCard {
         self.labels.get(&label.to_string()).map(String::as_str)
     }
 
+    /// The class names the card maps that are no NOCS category (such as "other"), in label order.
+    pub fn non_nocs_classes(&self) -> Vec<&str> {
+        let mut labels: Vec<(i64, &str)> = self
+            .labels
+            .iter()
+            .filter(|(_, name)| name.parse::<Category>().is_err())
+            .filter_map(|(k, name)| Some((k.parse().ok()?, name.as_str())))
+            .collect();
+        labels.sort_unstable();
+        labels.into_iter().map(|(_, name)| name).collect()
+    }
+
     /// The NOCS category of model label `label`, when the card maps it to one.
     pub fn category(&self, label: i64) -> Option<Category> {
         self.class_name(label).and_then(|n| n.parse().ok())

@@ -88,6 +88,8 @@ pub struct Segmenter {
     plans: Mutex<HashMap<PlanKey, Arc<TypedRunnableModel>>>,
     /// Detections [`Segmenter::segment`] dropped as duplicates so far.
     duplicates_dropped: AtomicU64,
+    /// Detections [`Segmenter::segment_nocs`] left out as of no NOCS category so far.
+    not_nocs_dropped: AtomicU64,
 }
 
 /// A plan's image width and height and the bits of its raised score floor (`None`: the
@@ -235,6 +237,7 @@ impl Segmenter {
             executor: tract_linalg::multithread::Executor::SingleThread,
             plans: Mutex::new(HashMap::new()),
             duplicates_dropped: AtomicU64::new(0),
+            not_nocs_dropped: AtomicU64::new(0),
         })
     }
 
@@ -405,6 +408,18 @@ impl Segmenter {
         Ok(instances)
     }
 
+    /// [`Self::segment`]'s detections of a NOCS category, each with its category. Those of a
+    /// class the card maps to no NOCS category (a model's "other" class, trained on what is no
+    /// object) have done their part in the duplicate suppression, which lets them drop a NOCS
+    /// detection they cover; they are left out here and counted in [`Self::not_nocs_dropped`].
+    pub fn segment_nocs(&self, image: &ColorImage) -> Result<Vec<(Category, SegInstance)>> {
+        let all = self.segment(image)?;
+        let total = all.len();
+        let nocs: Vec<(Category, SegInstance)> = all.into_iter().filter_map(|d| Some((d.category?, d))).collect();
+        self.not_nocs_dropped.fetch_add((total - nocs.len()) as u64, Ordering::Relaxed);
+        Ok(nocs)
+    }
+
     /// The mask the pose stage gets for one of [`Self::segment`]'s detections of `category`
     /// in `frame`: eroded by the card's `pose_mask_erode_px` ([`erode::erode_for_pose`]), then
     /// without its depth outliers when the card gives the category a
@@ -430,6 +445,11 @@ impl Segmenter {
     /// How many detections [`Self::segment`] has dropped as duplicates.
     pub fn duplicates_dropped(&self) -> u64 {
         self.duplicates_dropped.load(Ordering::Relaxed)
+    }
+
+    /// How many detections [`Self::segment_nocs`] has left out as of no NOCS category.
+    pub fn not_nocs_dropped(&self) -> u64 {
+        self.not_nocs_dropped.load(Ordering::Relaxed)
     }
 
     /// Turn duplicate suppression by mask IoU on at `iou` or off (`None`), overriding the card.

@@ -20,6 +20,7 @@ use crate::category::Category;
 use crate::error::{Error, Result};
 use crate::frame::{DEPTH_SCALE_MM, Intrinsics, LabelImage, NOCS_MAP_MAX, NocsMap, RgbdFrame};
 use crate::geometry::Pose;
+use crate::image_io::write_label_png;
 use crate::recording::annotations::{FrameAnnotations, GtInstance};
 use crate::recording::manifest::Manifest;
 use crate::recording::writer::{RecordingWriter, WriteMode, write_frame_files};
@@ -66,6 +67,10 @@ pub struct SynthConfig {
     pub color_noise: bool,
     /// Fewest visible pixels for an instance to be annotated.
     pub min_visible_px: usize,
+    /// Also make a mask of the distractors ([`SynthFrame::distractors`], written as
+    /// `{id}_distractors.png`): training data for a segmenter's "other" class. The frame's
+    /// other files do not change.
+    pub distractor_masks: bool,
 }
 
 impl Default for SynthConfig {
@@ -78,6 +83,7 @@ impl Default for SynthConfig {
             depth_noise: true,
             color_noise: true,
             min_visible_px: MIN_VISIBLE_PX,
+            distractor_masks: false,
         }
     }
 }
@@ -106,6 +112,9 @@ pub struct SynthFrame {
     pub frame: RgbdFrame,
     /// Annotated instances, instance mask and NOCS map.
     pub annotations: FrameAnnotations,
+    /// With [`SynthConfig::distractor_masks`]: the distractors with at least
+    /// `min_visible_px` visible pixels, ids 1..=n in scene order (0: no distractor).
+    pub distractors: Option<LabelImage>,
 }
 
 /// Renders frame `index` of the dataset with `seed`. Pure and deterministic:
@@ -166,8 +175,44 @@ pub fn render_frame(cfg: &SynthConfig, seed: u64, index: u64) -> SynthFrame {
         let depth = sensor::depth_image(&gb, cfg.depth_noise, &mut srng);
         let color = sensor::color_image(&gb, cfg.color_noise.then_some(&mut srng));
         let frame = RgbdFrame { color, depth, intrinsics: k, timestamp_s: index as f64 / TIMESTAMP_FPS };
-        return SynthFrame { frame, annotations: FrameAnnotations { instances, mask: Some(mask), nocs: Some(nocs) } };
+        let distractors = cfg.distractor_masks.then(|| distractor_mask(&sc, &gb.item, w, h, cfg.min_visible_px));
+        return SynthFrame {
+            frame,
+            annotations: FrameAnnotations { instances, mask: Some(mask), nocs: Some(nocs) },
+            distractors,
+        };
     }
+}
+
+/// The label image of `sc`'s distractors from the rasterizer's per-pixel item indices:
+/// those with at least `min_visible_px` pixels (at least 1) get ids 1..=n in scene order
+/// (at most 255), the rest of the image 0.
+fn distractor_mask(
+    sc: &scene::Scene,
+    item_of_pixel: &[u16],
+    width: u32,
+    height: u32,
+    min_visible_px: usize,
+) -> LabelImage {
+    let mut visible = vec![0usize; sc.items.len()];
+    for &it in item_of_pixel {
+        if let Some(v) = visible.get_mut(usize::from(it)) {
+            *v += 1;
+        }
+    }
+    let mut id_of = vec![0u8; sc.items.len()];
+    let mut next = 1u8;
+    for (i, item) in sc.items.iter().enumerate() {
+        if item.distractor && visible[i] >= min_visible_px.max(1) && next < u8::MAX {
+            id_of[i] = next;
+            next += 1;
+        }
+    }
+    let mut mask = LabelImage::new(width, height);
+    for (p, &it) in item_of_pixel.iter().enumerate() {
+        mask.data[p] = id_of.get(usize::from(it)).copied().unwrap_or(0);
+    }
+    mask
 }
 
 /// The scene of attempt `attempt` of frame `index` (camera frame = colour camera).
@@ -245,7 +290,11 @@ pub fn generate(
             .into_par_iter()
             .map(|i| {
                 let f = render_frame(cfg, seed, i as u64);
-                write_frame_files(out_dir, &format!("{i:06}"), &f.frame, Some(&f.annotations))
+                let id = format!("{i:06}");
+                if let Some(distractors) = &f.distractors {
+                    write_label_png(&out_dir.join(format!("{id}_distractors.png")), distractors)?;
+                }
+                write_frame_files(out_dir, &id, &f.frame, Some(&f.annotations))
             })
             .collect();
         for e in entries {

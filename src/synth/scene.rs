@@ -50,6 +50,8 @@ pub struct Item {
     pub tex_offset: Vec3,
     /// Index into [`Scene::objects`] for NOCS objects (local = NOCS frame).
     pub object: Option<usize>,
+    /// Whether this is a distractor (a box, sphere, cylinder or torus: no NOCS object).
+    pub distractor: bool,
 }
 
 /// A sampled scene, already expressed in the camera frame.
@@ -195,6 +197,7 @@ pub fn sample_scene(params: &SceneParams, rng: &mut Rng) -> Scene {
             tex_scale: model.tex_scale,
             tex_offset: model.tex_offset,
             object: Some(k),
+            distractor: false,
         });
     }
     for (mesh, world_from_local, mat) in distractors {
@@ -206,6 +209,7 @@ pub fn sample_scene(params: &SceneParams, rng: &mut Rng) -> Scene {
             tex_scale: 1.0,
             tex_offset: Vec3::zeros(),
             object: None,
+            distractor: true,
         });
     }
 
@@ -255,6 +259,7 @@ pub fn sample_scene(params: &SceneParams, rng: &mut Rng) -> Scene {
             tex_scale: 1.0,
             tex_offset: Vec3::zeros(),
             object: None,
+            distractor: false,
         });
     }
 

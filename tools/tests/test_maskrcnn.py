@@ -230,7 +230,7 @@ def test_training_resumes_where_it_stopped(tmp_path):
     demo = str(REPO / "tests" / "data" / "synthnocs-demo")
     args = argparse.Namespace(data=[demo, demo], out=str(tmp_path), steps=2, batch=1, lr=1e-4, warmup=1,
                               threads=1, limit=2, seed=0, ckpt_every=1, min_size=160, max_size=224,
-                              init=None, freeze_bn=False)
+                              init=None, freeze_bn=False, other_class=False)
     mr.train(args)
     import torch
 
@@ -239,3 +239,58 @@ def test_training_resumes_where_it_stopped(tmp_path):
     log = (tmp_path / "train.log").read_text()
     assert "4 frames indexed" in log and "resumed at step 2" in log and "step 3/3" in log
     assert torch.load(tmp_path / "last.pt", map_location="cpu")["step"] == 3
+
+
+def test_the_other_class_is_added_from_the_background_and_nothing_else_moves():
+    """A six-class state_dict gains OTHER_LABEL: the six classes' rows are unchanged, the new
+    classifier row is the background's, its box regression zero, its mask logits the six
+    classes' mean; the result loads strictly into the seven-class model and back out."""
+    import torch
+
+    torch.manual_seed(0)
+    six = mr.build_light().state_dict()
+    assert not mr.has_other_class(six)
+    seven = mr.add_other_class(six)
+    assert mr.has_other_class(seven)
+    model = mr.build_light(other_class=True)
+    model.load_state_dict(seven)  # strict: every key and shape
+    cls = "roi_heads.box_predictor.cls_score.weight"
+    box = "roi_heads.box_predictor.bbox_pred.weight"
+    mask = "roi_heads.mask_predictor.mask_fcn_logits.weight"
+    assert torch.equal(seven[cls][: mr.NUM_LABELS], six[cls])
+    assert torch.equal(seven[cls][mr.OTHER_LABEL], six[cls][0])
+    assert torch.equal(seven[box][: 4 * mr.NUM_LABELS], six[box])
+    assert not seven[box][4 * mr.OTHER_LABEL :].any()
+    assert torch.allclose(seven[mask][mr.OTHER_LABEL], six[mask][1:].mean(0))
+    assert all(torch.equal(seven[k], v) for k, v in six.items() if "predictor" not in k)
+
+
+def test_distractor_masks_become_other_targets(tmp_path):
+    """`tricons synth --distractor-masks` writes {id}_distractors.png; with ``other`` SegData
+    adds each distractor as an OTHER_LABEL target that overlaps no annotated object, and
+    without the file it says which file is missing and how to make it."""
+    rec = tmp_path / "rec"
+    subprocess.run(
+        [str(find_tricons()), "synth", "--out", str(rec), "--frames", "6", "--seed", "3", "--max-distractors", "8",
+         "--distractor-masks"],
+        check=True,
+        capture_output=True,
+    )
+    data = mr.SegData(str(rec), other=True)
+    plain = mr.SegData(str(rec))
+    others = 0
+    for i in range(len(data)):
+        _, t = data.item(i, flip=False)
+        _, tp = plain.item(i, flip=False)
+        labels = t["labels"].numpy()
+        n = len(tp["labels"])
+        assert (labels[:n] == tp["labels"].numpy()).all() and (labels[n:] == mr.OTHER_LABEL).all()
+        objects = t["masks"][:n].numpy().any(0)
+        for m in t["masks"][n:].numpy().astype(bool):
+            assert m.sum() >= mr.MIN_TARGET_PIXELS and not (m & objects).any()
+        others += len(labels) - n
+    assert others > 0, "no distractor in 6 frames of up to 8"
+    missing = data.distractors_path(0)
+    missing.unlink()
+    with pytest.raises(FileNotFoundError, match="--distractor-masks"):
+        data.target(0)

@@ -9,7 +9,10 @@ Commands (run from tools/ with ``python -m tricons_pose.maskrcnn ...``):
 
 * ``train``  -- train the light model on a SynthNOCS recording (CPU), with
   checkpoints and a progress log; resumable; ``--init`` starts from another
-  checkpoint's weights, ``--freeze-bn`` keeps BatchNorm statistics fixed.
+  checkpoint's weights, ``--freeze-bn`` keeps BatchNorm statistics fixed,
+  ``--other-class`` adds a seventh class, "other", trained on SynthNOCS distractors
+  (data from ``tricons synth --distractor-masks``; the card names it, the runtime lets it
+  suppress the NOCS detections it covers and reports none of its own).
 * ``import-onnx`` -- rebuild a checkpoint from a light ONNX export (BatchNorm
   folded into the convs by the export becomes identity BatchNorm), to fine-tune.
 * ``export`` -- export a checkpoint the way a user would
@@ -47,6 +50,12 @@ from .recording import CLASSES, Recording
 
 #: label 0 is background; label i (1..6) is CLASSES[i - 1].
 NUM_LABELS = len(CLASSES) + 1
+#: A model trained with ``--other-class`` has one more label: "other", the SynthNOCS
+#: distractors (``{id}_distractors.png``), so that what is no NOCS object has a class of its
+#: own to win instead of a NOCS one. The card names it "other" (no NOCS category): the runtime
+#: lets such detections suppress the NOCS ones they cover, then drops them.
+OTHER_LABEL = NUM_LABELS
+OTHER_NAME = "other"
 #: The shipped model works on images whose short side is resized to this.
 LIGHT_MIN_SIZE = 320
 LIGHT_MAX_SIZE = 432
@@ -65,8 +74,11 @@ LIGHT_CHANNELS = 128
 LIGHT_BOX_HIDDEN = 256
 
 
-def build_light(min_size: int = LIGHT_MIN_SIZE, max_size: int = LIGHT_MAX_SIZE, score_thresh: float = 0.05):
-    """Mask R-CNN with a MobileNetV3-Large-FPN backbone and the six NOCS classes.
+def build_light(
+    min_size: int = LIGHT_MIN_SIZE, max_size: int = LIGHT_MAX_SIZE, score_thresh: float = 0.05, other_class: bool = False
+):
+    """Mask R-CNN with a MobileNetV3-Large-FPN backbone and the six NOCS classes (and
+    :data:`OTHER_LABEL` with ``other_class``).
 
     torchvision's own classes throughout (``MaskRCNN``, ``BackboneWithFPN``,
     ``TwoMLPHead``, ``MaskRCNNHeads``); only the widths are smaller than
@@ -101,14 +113,15 @@ def build_light(min_size: int = LIGHT_MIN_SIZE, max_size: int = LIGHT_MAX_SIZE, 
     # Four maps (strides 8, 16, 32, 64), two sizes and three aspect ratios per level.
     anchors = AnchorGenerator(((16, 32), (48, 64), (96, 128), (192, 256)), ((0.5, 1.0, 2.0),) * 4)
     c = LIGHT_CHANNELS
+    labels = NUM_LABELS + 1 if other_class else NUM_LABELS
     return MaskRCNN(
         backbone,
         num_classes=None,
         rpn_anchor_generator=anchors,
         box_head=TwoMLPHead(c * 7 * 7, LIGHT_BOX_HIDDEN),
-        box_predictor=FastRCNNPredictor(LIGHT_BOX_HIDDEN, NUM_LABELS),
+        box_predictor=FastRCNNPredictor(LIGHT_BOX_HIDDEN, labels),
         mask_head=MaskRCNNHeads(c, [c] * 4, 1),
-        mask_predictor=MaskRCNNPredictor(c, c, NUM_LABELS),
+        mask_predictor=MaskRCNNPredictor(c, c, labels),
         min_size=min_size,
         max_size=max_size,
         rpn_pre_nms_top_n_test=500,
@@ -140,9 +153,12 @@ class SegData:
     when asked for (a frame's PNGs decode in milliseconds, next to seconds per training step;
     ten thousand frames held decoded would take 9 GB)."""
 
-    def __init__(self, roots: str | list[str], limit: int | None = None):
-        """``limit`` caps the frames taken from each recording."""
+    def __init__(self, roots: str | list[str], limit: int | None = None, other: bool = False):
+        """``limit`` caps the frames taken from each recording. With ``other``, each frame's
+        distractors (``{id}_distractors.png``, written by ``tricons synth --distractor-masks``)
+        become targets of :data:`OTHER_LABEL`."""
         roots = [roots] if isinstance(roots, str) else list(roots)
+        self.other = other
         self.frames = []  # (recording, annotations)
         for root in roots:
             rec = Recording(root)
@@ -178,11 +194,25 @@ class SegData:
             boxes.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
             masks.append(m)
             labels.append(inst.class_id + 1)
+        if self.other:
+            for m in distractor_masks(self.distractors_path(i)):
+                if m.sum() < MIN_TARGET_PIXELS:
+                    continue
+                ys, xs = np.nonzero(m)
+                boxes.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+                masks.append(m)
+                labels.append(OTHER_LABEL)
         return (
             np.asarray(boxes, np.float32).reshape(-1, 4),
             np.asarray(labels, np.int64),
             np.asarray(masks, bool).reshape(-1, *ids.shape[:2]),
         )
+
+    def distractors_path(self, i: int) -> Path:
+        """Where frame ``i``'s distractor mask is (beside its colour image)."""
+        rec, k, _ = self.frames[i]
+        color = rec.frames[k].color
+        return rec.root / (color.removesuffix("_color.png") + "_distractors.png")
 
     def item(self, i: int, flip: bool):
         img = torch.from_numpy(self.image(i).copy()).permute(2, 0, 1).float() / 255.0
@@ -196,6 +226,42 @@ class SegData:
         return img, {"boxes": torch.from_numpy(boxes), "labels": torch.from_numpy(labels), "masks": torch.from_numpy(masks)}
 
 
+def distractor_masks(path: Path) -> list[np.ndarray]:
+    """The distractors of a ``{id}_distractors.png`` (u8: 0 none, k the k-th distractor), one
+    boolean mask each, in id order; a missing file is an error that says how to make it."""
+    from PIL import Image
+
+    if not path.exists():
+        raise FileNotFoundError(
+            f"{path}: no distractor mask; --other-class needs training data written by "
+            "`tricons synth --distractor-masks`"
+        )
+    ids = np.asarray(Image.open(path))
+    return [ids == k for k in np.unique(ids) if k != 0]
+
+
+def has_other_class(state: dict) -> bool:
+    """Whether a ``build_light`` state_dict has the :data:`OTHER_LABEL` class."""
+    return state["roi_heads.box_predictor.cls_score.weight"].shape[0] == NUM_LABELS + 1
+
+
+def add_other_class(state: dict) -> dict:
+    """A six-class ``build_light`` state_dict with :data:`OTHER_LABEL` added: its classifier
+    row starts as the background's (what a distractor was until now), its box regression at
+    zero and its mask logits as the mean of the six classes'."""
+    out = dict(state)
+    cls_w, cls_b = "roi_heads.box_predictor.cls_score.weight", "roi_heads.box_predictor.cls_score.bias"
+    box_w, box_b = "roi_heads.box_predictor.bbox_pred.weight", "roi_heads.box_predictor.bbox_pred.bias"
+    mask_w, mask_b = "roi_heads.mask_predictor.mask_fcn_logits.weight", "roi_heads.mask_predictor.mask_fcn_logits.bias"
+    out[cls_w] = torch.cat([state[cls_w], state[cls_w][:1]])
+    out[cls_b] = torch.cat([state[cls_b], state[cls_b][:1]])
+    out[box_w] = torch.cat([state[box_w], torch.zeros_like(state[box_w][:4])])
+    out[box_b] = torch.cat([state[box_b], torch.zeros_like(state[box_b][:4])])
+    out[mask_w] = torch.cat([state[mask_w], state[mask_w][1:].mean(0, keepdim=True)])
+    out[mask_b] = torch.cat([state[mask_b], state[mask_b][1:].mean(0, keepdim=True)])
+    return out
+
+
 # --------------------------------------------------------------------------- training
 
 
@@ -207,9 +273,9 @@ def train(args):
     out.mkdir(parents=True, exist_ok=True)
     log = open(out / "train.log", "a", buffering=1)
     t0 = time.time()
-    data = SegData(args.data, args.limit)
+    data = SegData(args.data, args.limit, other=args.other_class)
     print(f"{len(data)} frames indexed in {time.time() - t0:.0f} s", file=log)
-    model = build_light(args.min_size, args.max_size)
+    model = build_light(args.min_size, args.max_size, other_class=args.other_class)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=args.lr, weight_decay=1e-4)
     step = 0
@@ -223,7 +289,11 @@ def train(args):
     elif args.init:
         # Weights only: the optimiser and the learning-rate schedule start afresh.
         state = torch.load(args.init, map_location="cpu")
-        model.load_state_dict(state["model"])
+        weights = state["model"]
+        if args.other_class and not has_other_class(weights):
+            weights = add_other_class(weights)
+            print("added the class 'other' to the initial weights", file=log)
+        model.load_state_dict(weights)
         print(f"initialised from {args.init}", file=log)
 
     def lr_at(s):
@@ -297,9 +367,10 @@ KEPT_CARD_FIELDS = ("score_threshold", "mask_threshold", "duplicate_mask_iou",
                     "pose_mask_erode_px", "pose_mask_max_radius_m")
 
 
-def write_card(path: Path, onnx_name: str, extra: dict):
+def write_card(path: Path, onnx_name: str, extra: dict, other_class: bool = False):
     """Write the segmenter card of ``onnx_name`` (beside ``path``); when a card is already at
-    ``path``, its :data:`KEPT_CARD_FIELDS` stay as they are."""
+    ``path``, its :data:`KEPT_CARD_FIELDS` stay as they are. ``other_class``: the model's
+    :data:`OTHER_LABEL` is named :data:`OTHER_NAME`."""
     import hashlib
 
     kept = {}
@@ -314,7 +385,7 @@ def write_card(path: Path, onnx_name: str, extra: dict):
         "architecture": extra.pop("architecture"),
         "input": {"name": "image", "layout": "CHW", "color": "rgb", "scale": 1.0 / 255.0},
         "outputs": {"boxes": "boxes", "labels": "labels", "scores": "scores", "masks": "masks"},
-        "labels": {str(i + 1): c for i, c in enumerate(CLASSES)},
+        "labels": {str(i + 1): c for i, c in enumerate(CLASSES)} | ({str(OTHER_LABEL): OTHER_NAME} if other_class else {}),
         "score_threshold": 0.5,
         "mask_threshold": 0.5,
         **extra,
@@ -326,8 +397,9 @@ def write_card(path: Path, onnx_name: str, extra: dict):
 
 
 def export_cmd(args):
-    model = build_light(args.min_size, args.max_size)
     state = torch.load(args.checkpoint, map_location="cpu")
+    other = has_other_class(state["model"])
+    model = build_light(args.min_size, args.max_size, other_class=other)
     model.load_state_dict(state["model"])
     out = Path(args.out)
     export_onnx(model, out)
@@ -339,6 +411,7 @@ def export_cmd(args):
             "architecture": f"torchvision MaskRCNN, MobileNetV3-Large-FPN, min_size {args.min_size}",
             "training": {"data": args.train_data, "steps": state["step"], "args": state.get("args", {})},
         },
+        other_class=other,
     )
     print(f"wrote {out} and {card}")
 
@@ -786,6 +859,9 @@ def main(argv=None):
     t.add_argument("--init", help="start from this checkpoint's weights (e.g. import-onnx's) unless OUT/last.pt exists")
     t.add_argument("--freeze-bn", action="store_true",
                    help="keep BatchNorm in eval mode (running statistics fixed, affine parameters trained)")
+    t.add_argument("--other-class", action="store_true",
+                   help="train a seventh class, 'other', on the data's distractors (needs `tricons synth "
+                   "--distractor-masks` data); a six-class --init gets it added")
     e = sub.add_parser("export", help="export a checkpoint to ONNX + model card")
     e.add_argument("--checkpoint", required=True)
     e.add_argument("--out", required=True)

@@ -230,6 +230,15 @@ pub fn run(args: Args) -> Result<()> {
         1e3 * secs / frames.len().max(1) as f64,
         out.display()
     );
+    if let MaskInput::Segmenter(seg) = &masks {
+        let others = seg.card().non_nocs_classes();
+        let others = if others.is_empty() { "none on its card".to_string() } else { others.join(", ") };
+        log::info!(
+            "segmenter: {} detections dropped as duplicates, {} of no NOCS class ({others}) left out",
+            seg.duplicates_dropped(),
+            seg.not_nocs_dropped(),
+        );
+    }
     if !args.no_eval {
         let has_gt = (0..rec.len()).any(|i| matches!(rec.read_instances(i), Ok(Some(_))));
         if has_gt {

@@ -11,7 +11,8 @@ use tricons::synth::{Split, SynthConfig, generate};
     tricons synth --split test --out data/synthnocs-test        # the fixed 500-frame benchmark split\n  \
     tricons synth --split val --out data/synthnocs-val\n  \
     tricons synth --out data/train --frames 20000 --seed 7       # training data, any seed and size\n  \
-    tricons synth --out data/train-dis --frames 4000 --seed 5 --max-distractors 8   # more no-objects\n\n\
+    tricons synth --out data/train-dis --frames 4000 --seed 5 --max-distractors 8   # more no-objects\n  \
+    tricons synth --out data/train-dis2 --frames 4000 --seed 9 --max-distractors 8 --distractor-masks   # and their masks\n\n\
     The same seed gives byte-identical files (same binary and platform). See docs/synthnocs.md.")]
 pub struct Args {
     /// Output recording directory.
@@ -42,6 +43,10 @@ pub struct Args {
     /// Render perfect depth (no sensor noise or holes).
     #[arg(long)]
     no_depth_noise: bool,
+    /// Also write `{id}_distractors.png`, the visible distractors' mask (ids 1..=n), to
+    /// train a segmenter's "other" class; the other files do not change.
+    #[arg(long)]
+    distractor_masks: bool,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -59,6 +64,7 @@ pub fn run(args: Args) -> Result<()> {
         max_objects: args.max_objects,
         max_distractors: args.max_distractors,
         depth_noise: !args.no_depth_noise,
+        distractor_masks: args.distractor_masks,
         ..SynthConfig::default()
     };
     let pb = progress::bar(frames, "rendering");
