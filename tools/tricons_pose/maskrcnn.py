@@ -363,7 +363,7 @@ def export_onnx(model, path: Path, height: int = 480, width: int = 640, opset: i
 
 # card fields chosen for a shipped model by evaluation (docs/results.md), which a re-export
 # over an existing card keeps: thresholds, duplicate suppression, the pose stage's masks
-KEPT_CARD_FIELDS = ("score_threshold", "mask_threshold", "duplicate_mask_iou",
+KEPT_CARD_FIELDS = ("score_threshold", "mask_threshold", "duplicate_mask_iou", "duplicate_mask_inside",
                     "pose_mask_erode_px", "pose_mask_max_radius_m")
 
 
