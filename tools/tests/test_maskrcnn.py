@@ -163,7 +163,8 @@ def test_import_onnx_reproduces_the_shipped_segmenter(tmp_path):
     mr.main(["import-onnx", "--onnx", str(model_path), "--out", str(out), "--threads", "1"])
     state = torch.load(out, map_location="cpu")
     assert state["step"] == 0 and state["args"]["import_onnx"] == str(model_path)
-    model = mr.build_light()
+    model = mr.build_light(other_class=mr.onnx_has_other_class(str(model_path)))
+    assert mr.has_other_class(state["model"]) == mr.onnx_has_other_class(str(model_path))
     model.load_state_dict(state["model"])
     fx = mr.ort_fixture(str(model_path), str(image))
     assert len(fx["instances"]) > 5

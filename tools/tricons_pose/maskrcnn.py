@@ -578,11 +578,21 @@ def torch_record(model: nn.Module, image: str) -> dict:
     }
 
 
+def onnx_has_other_class(path: str) -> bool:
+    """Whether a light export has the :data:`OTHER_LABEL` class (from its classifier's shape)."""
+    import onnx
+
+    for t in onnx.load(path).graph.initializer:
+        if t.name == "roi_heads.box_predictor.cls_score.weight":
+            return t.dims[0] == NUM_LABELS + 1
+    raise ValueError(f"{path}: no roi_heads.box_predictor.cls_score.weight: not a light Mask R-CNN export")
+
+
 def import_onnx_cmd(args):
     import hashlib
 
     torch.set_num_threads(args.threads)
-    model = build_light(args.min_size, args.max_size)
+    model = build_light(args.min_size, args.max_size, other_class=onnx_has_other_class(args.onnx))
     state = state_from_onnx(args.onnx, model)
     model.load_state_dict(state)
     out = Path(args.out)
