@@ -102,6 +102,23 @@ impl Segment for NoMasks {
     }
 }
 
+/// No instances, but every frame it "drops" one duplicate and two detections of no NOCS
+/// class, as a segmenter with an "other" class counts them.
+#[derive(Default)]
+struct DropsOthers(u64);
+impl Segment for DropsOthers {
+    fn segment(&mut self, _frame: &SourceFrame) -> tricons::Result<Vec<Detection>> {
+        self.0 += 1;
+        Ok(Vec::new())
+    }
+    fn duplicates_dropped(&self) -> u64 {
+        self.0
+    }
+    fn not_nocs_dropped(&self) -> u64 {
+        2 * self.0
+    }
+}
+
 /// A pose stage that takes `delay` per frame and reports the frame's sequence number as its score.
 struct Slow(Duration);
 impl Estimate for Slow {
@@ -178,6 +195,25 @@ fn a_live_source_loses_nothing_when_inference_keeps_up() {
     .unwrap();
     assert_eq!((summary.frames_captured, summary.frames_published, summary.frames_dropped), (8, 8, 0));
     assert_eq!(out.frames().iter().map(seq_of).collect::<Vec<_>>(), (0..8).collect::<Vec<_>>());
+}
+
+#[test]
+fn the_segment_stages_drop_counts_reach_health_and_metrics() {
+    let summary = PipelineBuilder::new(
+        Box::new(Ticker::new(6, Duration::from_millis(30))),
+        Box::new(DropsOthers::default()),
+        Box::new(Slow(Duration::from_millis(1))),
+    )
+    .build()
+    .run()
+    .unwrap();
+    assert_eq!(summary.frames_published, 6);
+    assert_eq!((summary.duplicate_detections_dropped, summary.not_nocs_detections_dropped), (6, 12));
+    let text = summary.to_prometheus();
+    assert!(text.contains("tricons_duplicate_detections_dropped_total 6\n"), "{text}");
+    assert!(text.contains("tricons_not_nocs_detections_dropped_total 12\n"), "{text}");
+    let health = serde_json::to_value(&summary).unwrap();
+    assert_eq!(health["not_nocs_detections_dropped"], 12);
 }
 
 #[test]
