@@ -101,6 +101,9 @@ def test_resume_continues_exactly(recording, tmp_path, stop_at, workers):
     _run(_args(recording, part, "--max-steps", str(stop_at), "--workers", workers))
     _run(_args(recording, part, "--max-steps", str(stop_at + 2), "--workers", workers, "--resume"))
     a, b = _log(full), _log(part)
+    config = json.loads((part / "config.json").read_text())
+    assert config["args"]["max_steps"] == stop_at and not config["args"]["resume"], "the first run's arguments stay"
+    assert [(r["args"]["max_steps"], r["step"]) for r in config["resumed_with"]] == [(stop_at + 2, stop_at)]
     assert [r["step"] for r in b] == list(range(1, stop_at + 3))
     for ra, rb in zip(a, b):
         assert (ra["step"], ra["epoch"], ra["lr"]) == (rb["step"], rb["epoch"], rb["lr"])

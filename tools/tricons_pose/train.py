@@ -383,6 +383,11 @@ def train(
     run_info = {"model_config": cfg.to_dict(), "args": vars(args), "n_samples": len(ds),
                 "steps_per_epoch": steps_per_epoch, "cycle_half_steps": cycle, "device": str(device),
                 "torch_threads": torch.get_num_threads()}
+    if args.resume and (out / "config.json").exists():
+        # the run's first configuration stays (its --init-from, say); each resume's arguments are added
+        first = json.loads((out / "config.json").read_text(encoding="utf-8"))
+        first.setdefault("resumed_with", []).append({"args": vars(args), "step": step})
+        run_info = first
     tmp = out / "config.json.tmp"
     tmp.write_text(json.dumps(run_info, indent=2, default=str) + "\n", encoding="utf-8")
     os.replace(tmp, out / "config.json")
