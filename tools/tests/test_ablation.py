@@ -65,3 +65,41 @@ def test_collect_keeps_the_adam_state_only_of_unfinished_cycles_and_restore_reve
     A.restore(args)
     back = A.run_dir(tmp_path / "fresh", "shipped", 1, 2)
     assert (back / "checkpoint.pt").read_bytes() == b"adam" and (back / "log.jsonl").read_text() == '{"step": 1}\n'
+
+
+def _finish(runs, variant, seed, cycle):
+    d = A.run_dir(runs, variant, seed, cycle)
+    d.mkdir(parents=True, exist_ok=True)
+    (d / A.END).write_bytes(b"weights")
+
+
+def test_workers_share_a_round_through_locks_and_take_over_a_dead_ones(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    runs = tmp_path / "runs"
+    first = (A.VARIANTS[0][0], A.SEEDS[0], 1)
+    assert A.next_cycle(runs, 1) == first
+    # another live process (pytest's parent) holds the first run: the next one is taken
+    d = A.run_dir(runs, *first)
+    d.mkdir(parents=True)
+    (d / "advance.lock").write_text(str(os.getppid()))
+    assert A.held(d) and not A.claim(d)
+    assert A.next_cycle(runs, 1) == (A.VARIANTS[1][0], A.SEEDS[0], 1)
+    # every other run of cycle 1 finished: cycle 2 of those starts, not of the held run
+    for seed in A.SEEDS:
+        for variant, _ in A.VARIANTS:
+            if (variant, seed, 1) != first:
+                _finish(runs, variant, seed, 1)
+    assert A.next_cycle(runs, 1) == "wait"
+    assert A.next_cycle(runs, 2) == (A.VARIANTS[1][0], A.SEEDS[0], 2)
+    # the holder died: its lock is stale, the run is claimable again and claimed by this pid
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (d / "advance.lock").write_text(str(dead.pid))
+    assert not A.held(d) and A.next_cycle(runs, 1) == first
+    assert A.claim(d) and (d / "advance.lock").read_text() == str(os.getpid())
+    assert not A.held(d)  # this process's own lock
+    _finish(runs, *first)
+    assert A.next_cycle(runs, 1) is None

@@ -3,6 +3,8 @@ part 5; tools/MODEL.md, "The ablation")::
 
     # from tools/, on one core; resumable: run it again after an interruption
     taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4
+    # optional, a second worker on the other core (niced: builds and tests come first there)
+    nice -n 19 taskset -c 1 .venv/bin/python -m tricons_pose.ablation advance --cycles 4
     .venv/bin/python -m tricons_pose.ablation eval       # tools/eval_runtime.sh on every new cycle end
     .venv/bin/python -m tricons_pose.ablation table      # the paper's layout, mean (lo-hi) over seeds
     .venv/bin/python -m tricons_pose.ablation collect    # copy what a commit needs to models/checkpoints/ablation
@@ -14,8 +16,9 @@ trained the shipped model's last four stages (tools/MODEL.md E7-E13): Adam from 
 triangular 5e-5..3e-4 over a half-cycle of 1500 steps, batch 16, a fifth of the samples on
 perturbed masks, SynthNOCS train + train2 (8000 frames); cycle 1 starts from random weights,
 cycle c > 1 from cycle c-1's last weights; the data order of cycle c of seed s is seed
-100 s + c. ``advance`` goes round-robin by cycle (every run finishes cycle c before any run
-starts c + 1), so a table at an equal budget exists after every round.
+100 s + c. ``advance`` goes round-robin by cycle (no run starts cycle c + 1 while one could
+start cycle c), so a table at an equal budget exists after every round; workers share the round
+through a lock file per cycle directory.
 
 Layout: RUNS/<variant>-s<seed>/cycle<c>/ (a train.py run directory; ``model-step3000.pt`` marks a
 finished cycle, ``eval-val/`` its evaluation).
@@ -30,6 +33,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from .report import ALL_METRICS, table
@@ -63,24 +67,96 @@ def train_command(runs: Path, data: list[str], cache: str, variant: str, seed: i
     return cmd
 
 
-def advance(args) -> int:
-    runs = Path(args.runs).resolve()
-    for cycle in range(1, args.cycles + 1):
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def claim(out: Path) -> bool:
+    """Take ``out`` for this process (``advance.lock`` holding its pid, created exclusively);
+    False while another live process holds it. A lock left by a dead process is taken over."""
+    lock = out / "advance.lock"
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            try:
+                pid = int(lock.read_text(encoding="utf-8").strip() or 0)
+            except (OSError, ValueError):
+                pid = 0
+            if pid and _alive(pid):
+                return False
+            lock.unlink(missing_ok=True)
+            continue
+        os.write(fd, str(os.getpid()).encode())
+        os.close(fd)
+        return True
+    return False
+
+
+def held(out: Path) -> bool:
+    """Whether a live process other than this one is training ``out``."""
+    lock = out / "advance.lock"
+    try:
+        pid = int(lock.read_text(encoding="utf-8").strip() or 0)
+    except (OSError, ValueError):
+        return False
+    return pid != os.getpid() and _alive(pid)
+
+
+def next_cycle(runs: Path, cycles: int):
+    """The first (variant, seed, cycle) in round-robin order that is neither finished nor held
+    by another ``advance``, and whose previous cycle has finished; "wait" when only held runs
+    (or cycles after them) are left; None when every run has ``cycles`` cycles."""
+    waiting = False
+    for cycle in range(1, cycles + 1):
         for seed in SEEDS:
             for variant, _ in VARIANTS:
                 out = run_dir(runs, variant, seed, cycle)
                 if (out / END).exists():
                     continue
+                if held(out):
+                    waiting = True
+                    continue
                 if cycle > 1 and not (run_dir(runs, variant, seed, cycle - 1) / END).exists():
+                    if held(run_dir(runs, variant, seed, cycle - 1)):
+                        waiting = True
+                        continue
                     raise SystemExit(f"{out}: cycle {cycle - 1} of this run has not finished")
-                out.mkdir(parents=True, exist_ok=True)
-                cmd = train_command(runs, args.data, args.cache_dir, variant, seed, cycle)
-                print(f"[ablation] {variant} seed {seed} cycle {cycle}: {' '.join(cmd[1:])}", flush=True)
-                with open(out / "stdout.log", "a", encoding="utf-8") as log:
-                    rc = subprocess.call(cmd, cwd=TOOLS, stdout=log, stderr=subprocess.STDOUT)
-                if rc != 0:
-                    raise SystemExit(f"{out}: train.py exited with {rc} (see {out / 'stdout.log'})")
-    return 0
+                return variant, seed, cycle
+    return "wait" if waiting else None
+
+
+def advance(args) -> int:
+    """Train the next cycle until every run has ``--cycles``; several ``advance`` processes
+    (one per core) share the work: each takes a run no other one holds (``advance.lock``)."""
+    runs = Path(args.runs).resolve()
+    while True:
+        nxt = next_cycle(runs, args.cycles)
+        if nxt is None:
+            return 0
+        if nxt == "wait":
+            time.sleep(args.poll_s)
+            continue
+        variant, seed, cycle = nxt
+        out = run_dir(runs, variant, seed, cycle)
+        out.mkdir(parents=True, exist_ok=True)
+        if not claim(out):
+            continue
+        try:
+            cmd = train_command(runs, args.data, args.cache_dir, variant, seed, cycle)
+            print(f"[ablation] {variant} seed {seed} cycle {cycle}: {' '.join(cmd[1:])}", flush=True)
+            with open(out / "stdout.log", "a", encoding="utf-8") as log:
+                rc = subprocess.call(cmd, cwd=TOOLS, stdout=log, stderr=subprocess.STDOUT)
+        finally:
+            (out / "advance.lock").unlink(missing_ok=True)
+        if rc != 0:
+            raise SystemExit(f"{out}: train.py exited with {rc} (see {out / 'stdout.log'})")
 
 
 def finished(runs: Path):
@@ -197,6 +273,8 @@ def main(argv=None) -> int:
     p.add_argument("--runs", default=str(ROOT / "data/runs/ablation"), help="run directories")
     p.add_argument("--dest", default=str(ROOT / "models/checkpoints/ablation"), help="collect/restore: committed copy")
     p.add_argument("--cycles", type=int, default=1, help="advance: every run up to this many cycles")
+    p.add_argument("--poll-s", type=float, default=60.0,
+                   help="advance: while only runs held by another advance are left, look again after this long")
     p.add_argument("--data", nargs="+", default=["../data/synthnocs-train", "../data/synthnocs-train2"],
                    help="advance: training recordings (relative to tools/)")
     p.add_argument("--cache-dir", default="../data/cache-train", help="advance: preprocessing cache")
