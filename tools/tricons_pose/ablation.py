@@ -3,8 +3,8 @@ part 5; tools/MODEL.md, "The ablation")::
 
     # from tools/, on one core; resumable: run it again after an interruption
     taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4
-    # optional, a second worker on the other core (niced: builds and tests come first there)
-    nice -n 19 taskset -c 1 .venv/bin/python -m tricons_pose.ablation advance --cycles 4
+    # a second worker (another core or machine sharing RUNS) takes the runs the first does not
+    # hold; each keeps its own frame cache (about 11 GB for train + train2), so not on 24 GB
     .venv/bin/python -m tricons_pose.ablation eval       # tools/eval_runtime.sh on every new cycle end
     .venv/bin/python -m tricons_pose.ablation table      # the paper's layout, mean (lo-hi) over seeds
     .venv/bin/python -m tricons_pose.ablation collect    # copy what a commit needs to models/checkpoints/ablation
