@@ -66,8 +66,12 @@ struct Evaluation {
     model: String,
     frames: usize,
     objects: usize,
+    /// Detections of the NOCS classes (what the AP and the per-object ratio count).
     detections: usize,
     detections_per_object: f64,
+    /// Detections of labels the card maps to no NOCS class (e.g. "other"), kept in
+    /// segments.jsonl but not scored.
+    other_detections: usize,
     duplicate_mask_iou: Option<f32>,
     duplicate_mask_inside: Option<f32>,
     duplicates_dropped: u64,
@@ -130,7 +134,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     let bar = progress::bar(frames.len(), "segment");
     let (mut records, mut total, mut secs) = (Vec::new(), 0usize, 0f64);
-    let mut eval_frames = Vec::new();
+    let (mut eval_frames, mut other_detections) = (Vec::new(), 0usize);
     for (index, (id, load)) in frames.iter().enumerate() {
         let image = load().with_context(|| format!("reading frame {id}"))?;
         let t = Instant::now();
@@ -143,7 +147,9 @@ pub fn run(args: Args) -> Result<()> {
         }
         records.push(SegRecord::new(id, image.width, image.height, &instances));
         if let (true, Some(rec)) = (evaluate, &recording) {
-            eval_frames.push((detections_2d(&instances), ground_truth_2d(rec.as_ref().as_ref(), index)?));
+            let nocs = detections_2d(&instances);
+            other_detections += instances.len() - nocs.len();
+            eval_frames.push((nocs, ground_truth_2d(rec.as_ref().as_ref(), index)?));
         }
         bar.inc(1);
     }
@@ -172,6 +178,7 @@ pub fn run(args: Args) -> Result<()> {
             objects,
             detections,
             detections_per_object: detections as f64 / objects.max(1) as f64,
+            other_detections,
             duplicate_mask_iou: seg.card().duplicate_mask_iou,
             duplicate_mask_inside: seg.card().duplicate_mask_inside,
             duplicates_dropped: seg.duplicates_dropped(),
@@ -186,8 +193,14 @@ pub fn run(args: Args) -> Result<()> {
                 .join(" or "),
         };
         println!(
-            "{} frames: {} detections of NOCS classes for {} objects ({:.2} per object); duplicate suppression {dup}: {} dropped",
-            eval.frames, eval.detections, eval.objects, eval.detections_per_object, eval.duplicates_dropped
+            "{} frames: {} detections of NOCS classes for {} objects ({:.2} per object), {} of no NOCS class; \
+             duplicate suppression {dup}: {} dropped",
+            eval.frames,
+            eval.detections,
+            eval.objects,
+            eval.detections_per_object,
+            eval.other_detections,
+            eval.duplicates_dropped
         );
         for (name, ap) in &eval.ap {
             println!("{name:<10}{:>8}", ap.map_or_else(|| "-".to_string(), |v| format!("{v:.1}")));
