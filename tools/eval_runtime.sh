@@ -40,25 +40,17 @@ case $ckpt in /*) ;; *) ckpt=$root/$ckpt ;; esac
     --rotation-from-keypoints "${ROTATION_FROM_KEYPOINTS:-bowl}" --rotation-keypoint-blend "$blend" $consistency $min_score \
     ${EXPORT_ARGS:-} >"$out/export.log" 2>&1) \
     || { cat "$out/export.log" >&2; echo "error: export of $ckpt failed" >&2; exit 1; }
+. tools/eval_common.sh
 for m in $masks; do
-    for s in $seeds; do
-        "$tricons" replay --recording "$rec" --model "$out/tricons-pose.card.json" --masks "$m" --seed "$s" \
-            --threads 1 --out "$out/$m-seed$s.jsonl" >"$out/$m-seed$s.txt" 2>&1 \
-            || { cat "$out/$m-seed$s.txt" >&2; echo "error: replay ($m masks, seed $s) failed" >&2; exit 1; }
-    done
+    replay_seeds "$m" --model "$out/tricons-pose.card.json" --masks "$m"
 done
 {
     echo "# $ckpt on $rec (seeds: $seeds)"
     for m in $masks; do
-        files=$(for s in $seeds; do printf '%s,' "$out/$m-seed$s.eval.json"; done)
         echo
         echo "## $m masks"
         echo
-        (cd tools && .venv/bin/python -m tricons_pose.report --row "$m masks=$files" \
-            --metrics IoU50,IoU75,5deg2cm,10deg5cm)
-        echo
-        (cd tools && .venv/bin/python -m tricons_pose.report --per-class "$files" \
-            --metrics IoU50,IoU75,5deg2cm,10deg5cm,median_rotation_deg)
+        seeds_summary "$m" "$m masks" IoU50,IoU75,5deg2cm,10deg5cm
     done
 } >"$out/summary.md"
 cat "$out/summary.md"

@@ -41,11 +41,8 @@ cp "$card" "$out/maskrcnn.card.json"
 tools/.venv/bin/python docs/bench/duplicates-2026-12-02/breakdown.py "$rec" "$out/segment/segments.jsonl" \
     >"$out/breakdown.txt"
 rm -rf "$out/segment"
-for s in $seeds; do
-    "$tricons" replay --recording "$rec" --model "$pose" --masks model --segmenter "$out/maskrcnn.card.json" \
-        --seed "$s" --threads 1 --out "$out/model-seed$s.jsonl" >"$out/model-seed$s.txt" 2>&1 \
-        || { cat "$out/model-seed$s.txt" >&2; echo "error: replay (seed $s) failed" >&2; exit 1; }
-done
+. tools/eval_common.sh
+replay_seeds model --model "$pose" --masks model --segmenter "$out/maskrcnn.card.json"
 {
     echo "# $ckpt on $rec (pose model $pose; seeds: $seeds)"
     echo
@@ -53,12 +50,7 @@ done
     grep -E "AP|per object|detections" "$out/seg.txt" || true
     cat "$out/breakdown.txt"
     echo '```'
-    files=$(for s in $seeds; do printf '%s,' "$out/model-seed$s.eval.json"; done)
     echo
-    (cd tools && .venv/bin/python -m tricons_pose.report --row "pipeline=$files" \
-        --metrics IoU25,IoU50,IoU75,5deg2cm,5deg5cm,10deg2cm,10deg5cm)
-    echo
-    (cd tools && .venv/bin/python -m tricons_pose.report --per-class "$files" \
-        --metrics IoU50,IoU75,5deg2cm,10deg5cm,median_rotation_deg)
+    seeds_summary model pipeline IoU25,IoU50,IoU75,5deg2cm,5deg5cm,10deg2cm,10deg5cm
 } >"$out/summary.md"
 cat "$out/summary.md"
