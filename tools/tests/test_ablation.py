@@ -22,6 +22,9 @@ def test_cycles_chain_weights_and_resume_in_place(tmp_path):
     (runs / "baseline-s2" / "cycle2" / "checkpoint.pt").write_bytes(b"x")
     again = A.train_command(runs, ["d"], "c", "baseline", 2, 2)
     assert "--resume" in again and "--init-from" not in again
+    assert "--frame-cache" not in again
+    disk = A.train_command(runs, ["d"], "c", "baseline", 2, 2, "disk")
+    assert disk[disk.index("--frame-cache") + 1] == "disk"
 
 
 def test_table_is_the_mean_over_training_seeds_of_each_seeds_sampling_mean(tmp_path):

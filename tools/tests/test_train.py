@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -303,3 +304,17 @@ def test_mask_perturbation_is_an_option_of_the_run(recording, tmp_path):
     out = tmp_path / "run"
     assert _run(_args(recording, out, "--max-steps", "1", "--mask-perturb", "0.5"))["step"] == 1
     assert json.loads((out / "config.json").read_text())["args"]["mask_perturb"] == 0.5
+
+
+def test_disk_frame_cache_trains_on_the_same_samples_and_keeps_no_frames_in_memory(recording, tmp_path):
+    with pytest.raises(SystemExit):  # disk reads --cache-dir's files
+        T.parse_args(["--data", str(recording), "--out", str(tmp_path / "x"), "--frame-cache", "disk"])
+    mem, disk = tmp_path / "mem", tmp_path / "disk"
+    _run(_args(recording, mem, "--max-steps", "4", "--mask-perturb", "0.5"))
+    _run(_args(recording, disk, "--max-steps", "4", "--mask-perturb", "0.5", "--frame-cache", "disk"))
+    assert [r["total"] for r in _log(mem)] == [r["total"] for r in _log(disk)]
+    args = _args(recording, tmp_path / "y", "--frame-cache", "disk")
+    ds = T.training_dataset([recording], CFG, 4, args.cache_dir, mask_perturb=0.5, memory_cache=False)
+    for i in range(len(ds)):
+        ds[i]
+    assert ds._mem == {} and len(list(Path(args.cache_dir).glob("*.npz"))) > 0

@@ -3,8 +3,9 @@ part 5; tools/MODEL.md, "The ablation")::
 
     # from tools/, on one core; resumable: run it again after an interruption
     taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4
-    # a second worker (another core or machine sharing RUNS) takes the runs the first does not
-    # hold; each keeps its own frame cache (about 11 GB for train + train2), so not on 24 GB
+    # a second worker (another core, or a machine sharing RUNS) takes the runs the first does not
+    # hold; with the default frame cache each holds ~11 GB (train + train2): on a 24 GB machine
+    # give both --frame-cache disk (~4 ms more per sample, the same samples)
     .venv/bin/python -m tricons_pose.ablation eval       # tools/eval_runtime.sh on every new cycle end
     .venv/bin/python -m tricons_pose.ablation table      # the paper's layout, mean (lo-hi) over seeds
     .venv/bin/python -m tricons_pose.ablation collect    # copy what a commit needs to models/checkpoints/ablation
@@ -52,14 +53,18 @@ def run_dir(runs: Path, variant: str, seed: int, cycle: int) -> Path:
     return runs / f"{variant}-s{seed}" / f"cycle{cycle}"
 
 
-def train_command(runs: Path, data: list[str], cache: str, variant: str, seed: int, cycle: int) -> list[str]:
-    """The train.py command of one cycle (resuming it when its checkpoint exists)."""
+def train_command(runs: Path, data: list[str], cache: str, variant: str, seed: int, cycle: int,
+                  frame_cache: str = "memory") -> list[str]:
+    """The train.py command of one cycle (resuming it when its checkpoint exists); ``frame_cache``
+    is train.py's ``--frame-cache`` (the samples are the same either way)."""
     out = run_dir(runs, variant, seed, cycle)
     cmd = [sys.executable, "-m", "tricons_pose.train", "--data", *data, "--config", variant, "--out", str(out),
            "--epochs", "100", "--batch-size", "16", "--seed", str(100 * seed + cycle), "--workers", "1",
            "--threads", "1", "--cache-dir", cache, "--lr", "5e-5", "--max-lr", "3e-4", "--lr-mode", "triangular",
            "--cycle-steps", str(CYCLE_STEPS // 2), "--keep-cycle-ends", "--max-steps", str(CYCLE_STEPS),
            "--ckpt-every", "250", "--mask-perturb", "0.2", "--log-every", "100"]
+    if frame_cache != "memory":
+        cmd += ["--frame-cache", frame_cache]
     if (out / "checkpoint.pt").exists():
         cmd.append("--resume")
     elif cycle > 1:
@@ -149,7 +154,7 @@ def advance(args) -> int:
         if not claim(out):
             continue
         try:
-            cmd = train_command(runs, args.data, args.cache_dir, variant, seed, cycle)
+            cmd = train_command(runs, args.data, args.cache_dir, variant, seed, cycle, args.frame_cache)
             print(f"[ablation] {variant} seed {seed} cycle {cycle}: {' '.join(cmd[1:])}", flush=True)
             with open(out / "stdout.log", "a", encoding="utf-8") as log:
                 rc = subprocess.call(cmd, cwd=TOOLS, stdout=log, stderr=subprocess.STDOUT)
@@ -273,6 +278,9 @@ def main(argv=None) -> int:
     p.add_argument("--runs", default=str(ROOT / "data/runs/ablation"), help="run directories")
     p.add_argument("--dest", default=str(ROOT / "models/checkpoints/ablation"), help="collect/restore: committed copy")
     p.add_argument("--cycles", type=int, default=1, help="advance: every run up to this many cycles")
+    p.add_argument("--frame-cache", choices=("memory", "disk"), default="memory",
+                   help="advance: train.py's --frame-cache; disk lets two workers share the OS page cache "
+                        "instead of holding ~11 GB each")
     p.add_argument("--poll-s", type=float, default=60.0,
                    help="advance: while only runs held by another advance are left, look again after this long")
     p.add_argument("--data", nargs="+", default=["../data/synthnocs-train", "../data/synthnocs-train2"],

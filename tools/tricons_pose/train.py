@@ -215,6 +215,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--max-steps", type=int, default=0, help="stop after this global step (0: run all epochs)")
     p.add_argument("--grad-clip", type=float, default=0.0, help="clip the gradient norm (0: off)")
     p.add_argument("--cache-dir", default=None, help="keep preprocessed instances here as .npz (optional)")
+    p.add_argument("--frame-cache", choices=("memory", "disk"), default="memory",
+                   help="memory: each loader worker also keeps every frame it has read (about 11 GB for SynthNOCS "
+                        "train + train2); disk: read --cache-dir's .npz at every use, so that several training "
+                        "processes share the OS page cache (needs --cache-dir; the samples are the same)")
     p.add_argument("--no-color-jitter", action="store_true")
     p.add_argument("--mask-perturb", type=float, default=0.0, metavar="P",
                    help="probability of a dilated / eroded / shifted instance mask per sample (0: off); "
@@ -230,6 +234,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.epochs < 1 or args.batch_size < 1:
         p.error("--epochs and --batch-size must be positive")
+    if args.frame_cache == "disk" and args.cache_dir is None:
+        p.error("--frame-cache disk reads --cache-dir's files: give --cache-dir")
     if not 0.0 <= args.mask_perturb <= 1.0:
         p.error(f"--mask-perturb {args.mask_perturb} must lie in [0, 1]")
     if args.real is None and (args.real_per_batch or args.steps_per_epoch):
@@ -242,14 +248,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def training_dataset(recordings: list, cfg: ModelConfig, seed: int, cache_dir: str | None, color_jitter: bool = True,
-                     mask_perturb: float = 0.0) -> InstanceDataset:
-    """The instances of ``recordings`` with the augmentation training applies to a model of ``cfg``."""
+                     mask_perturb: float = 0.0, memory_cache: bool = True) -> InstanceDataset:
+    """The instances of ``recordings`` with the augmentation training applies to a model of ``cfg``
+    (``memory_cache``: keep every frame read in memory, see ``--frame-cache``)."""
     n_views = 2 if cfg.use_sckd_loss else 1
     # view 0 drives the pose supervision in forward_train and is kept isotropic there
     augment = AugmentConfig(n_views=n_views, isotropic_views=(0,), scale_axes="camera",
                             color_jitter=color_jitter, mask_perturb=mask_perturb)
     return InstanceDataset(recordings, n_points=cfg.n_points, crop_size=cfg.crop_size, seed=seed,
-                           augment=augment, cache_dir=cache_dir)
+                           augment=augment, cache=memory_cache, cache_dir=cache_dir)
 
 
 def _rng_state() -> dict:
@@ -329,7 +336,8 @@ def train(
     recs_a = [rec for r in args.data for rec in open_any(r)]
     recs_b = [rec for r in (getattr(args, "real", None) or []) for rec in open_any(r)]
     ds = training_dataset(recs_a + recs_b, cfg, args.seed, args.cache_dir, color_jitter=not args.no_color_jitter,
-                          mask_perturb=args.mask_perturb)
+                          mask_perturb=args.mask_perturb,
+                          memory_cache=getattr(args, "frame_cache", "memory") == "memory")
     if recs_b:
         n_a = sum(1 for ref in ds.index if ref.rec < len(recs_a))
         per_b = args.real_per_batch
