@@ -72,29 +72,28 @@ def train_command(runs: Path, data: list[str], cache: str, variant: str, seed: i
     return cmd
 
 
-def _alive(pid: int) -> bool:
+def _holder(out: Path) -> int:
+    """The pid in ``out``'s ``advance.lock`` when that process is alive, else 0."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+        pid = int((out / "advance.lock").read_text(encoding="utf-8").strip() or 0)
+        if pid:
+            os.kill(pid, 0)
+    except PermissionError:  # alive, another user's
+        return pid
+    except (OSError, ValueError):  # no lock, unreadable, or its process is gone
+        return 0
+    return pid
 
 
 def claim(out: Path) -> bool:
     """Take ``out`` for this process (``advance.lock`` holding its pid, created exclusively);
-    False while another live process holds it. A lock left by a dead process is taken over."""
+    False while a live process holds it. A lock left by a dead process is taken over."""
     lock = out / "advance.lock"
     for _ in range(2):
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
         except FileExistsError:
-            try:
-                pid = int(lock.read_text(encoding="utf-8").strip() or 0)
-            except (OSError, ValueError):
-                pid = 0
-            if pid and _alive(pid):
+            if _holder(out):
                 return False
             lock.unlink(missing_ok=True)
             continue
@@ -106,12 +105,7 @@ def claim(out: Path) -> bool:
 
 def held(out: Path) -> bool:
     """Whether a live process other than this one is training ``out``."""
-    lock = out / "advance.lock"
-    try:
-        pid = int(lock.read_text(encoding="utf-8").strip() or 0)
-    except (OSError, ValueError):
-        return False
-    return pid != os.getpid() and _alive(pid)
+    return _holder(out) not in (0, os.getpid())
 
 
 def next_cycle(runs: Path, cycles: int):
