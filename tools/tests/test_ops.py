@@ -124,6 +124,20 @@ def test_ball_query_edge_cases():
     assert ops.ball_query(x2, c2, 0.5, 2).tolist() == [[[1, 1]]]
 
 
+def test_ball_query_wide_counts():
+    """Past the 16-bit hit counts: N >= 2**15 points (and nsample past N) count in a wider type."""
+    n = 2**15 + 7
+    x = torch.zeros(1, n, 3)
+    x[0, :, 0] = torch.linspace(0.0, 1.0, n)
+    c = torch.tensor([[[1.0, 0.0, 0.0], [0.5, 0.0, 0.0], [3.0, 0.0, 0.0]]])
+    got = ops.ball_query(x, c, 1e-4, 5)
+    np.testing.assert_array_equal(got.numpy(), ref.ball_query(x.numpy(), c.numpy(), 1e-4, 5))
+    assert n - 1 in got[0, 0].tolist() and got[0, 2].tolist() == [0] * 5
+    few = torch.tensor([[[0.0, 0, 0], [0.1, 0, 0]]])
+    many = ops.ball_query(few, few[:, :1], 1.0, 2**15 + 2)  # nsample alone past 16 bits
+    assert many.shape == (1, 1, 2**15 + 2) and many[0, 0, :3].tolist() == [0, 1, 0]
+
+
 # ----------------------------------------------------------------- three_nn / interpolate
 
 @pytest.mark.parametrize("B,N,S", SIZES)
@@ -157,6 +171,19 @@ def test_three_nn_with_duplicated_points_matches_reference():
     rd, ri = ref.three_nn(unknown.numpy(), known.numpy())
     np.testing.assert_array_equal(i.numpy(), ri)
     np.testing.assert_allclose(d.numpy(), rd, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("k", [1, 3, 8])
+def test_knn_fast_path_equals_a_full_stable_sort(k):
+    """The topk fast path with its tie and NaN fallback gives what a full stable sort gives."""
+    base = _rand(2, 30, 3, seed=31)
+    points = torch.cat([base, base[:, :12], base[:, 5:9]], dim=1)  # duplicates: ties across cuts
+    points[1, 7] = float("nan")  # a NaN distance in every row of batch 1
+    query = torch.cat([points[:, ::4], _rand(2, 20, 3, seed=32)], dim=1)
+    vals, idx = ops._knn_sorted(query, points, k)
+    full_vals, full_idx = torch.sort(ops._pairwise_sqdist(query, points), dim=-1, stable=True)
+    assert torch.equal(idx, full_idx[..., :k])
+    assert torch.equal(vals.nan_to_num(-1.0), full_vals[..., :k].nan_to_num(-1.0))
 
 
 @pytest.mark.parametrize("B,N,S", SIZES)

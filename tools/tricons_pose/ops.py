@@ -57,10 +57,11 @@ def _pairwise_sqdist(a: Tensor, b: Tensor) -> Tensor:
     Computed exactly as ``(dx*dx + dy*dy) + dz*dz`` with ``dx = a.x - b.x``
     (separate multiplies and adds, in place, no (B, S, N, 3) temporary).
     """
-    a = a.detach()
-    b = b.detach()
-    a0, a1, a2 = (t.unsqueeze(-1) for t in a.unbind(-1))
-    b0, b1, b2 = (t.unsqueeze(-2) for t in b.unbind(-1))
+    # coordinate planes (B, 3, S) / (B, 3, N): contiguous rows broadcast faster than stride-3 views
+    a = a.detach().transpose(1, 2).contiguous()
+    b = b.detach().transpose(1, 2).contiguous()
+    a0, a1, a2 = (t.unsqueeze(-1) for t in a.unbind(1))
+    b0, b1, b2 = (t.unsqueeze(-2) for t in b.unbind(1))
     dx = a0 - b0
     d2 = dx.mul_(dx)
     dy = a1 - b1
@@ -69,28 +70,23 @@ def _pairwise_sqdist(a: Tensor, b: Tensor) -> Tensor:
     return d2.add_(dz.mul_(dz))
 
 
-def _sqnorm_rows(x: Tensor, y: Tensor) -> Tensor:
-    """``(d0*d0 + d1*d1) + d2*d2`` for ``d = x - y`` over the last axis (size 3)."""
-    d = x - y
-    return (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) + d[..., 2] * d[..., 2]
-
-
 def _knn_sorted(query: Tensor, points: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """k nearest points of each query: (sqdist, idx), ascending, ties -> lower index.
 
-    Fast path: ``topk``; it is exact for a query whenever exactly k distances are
-    <= its k-th smallest (no tie across the cut), and the k picks are then re-ordered
-    by (distance, index). The queries where that fails (a tie across the cut, which
-    duplicated sample points make common, or NaN) get a full stable sort of their row
-    only.
+    Fast path: ``topk`` of k + 1; its first k are exact for a query whenever the
+    (k+1)-th smallest distance is strictly above the k-th (no tie across the cut), and
+    the k picks are then re-ordered by (distance, index). The queries where that fails
+    (a tie across the cut, which duplicated sample points make common, or NaN) get a
+    full stable sort of their row only.
     """
     d2 = _pairwise_sqdist(query, points)
     n = d2.shape[-1]
     if k >= n:
         vals, idx = torch.sort(d2, dim=-1, stable=True)
         return vals[..., :k].contiguous(), idx[..., :k].contiguous()
-    vals, idx = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
-    bad = (d2 <= vals[..., -1:]).sum(-1) != k
+    vals, idx = torch.topk(d2, k + 1, dim=-1, largest=False, sorted=True)
+    bad = ~(vals[..., k] > vals[..., k - 1])  # False for NaN too
+    vals, idx = vals[..., :k], idx[..., :k]
     idx, perm = torch.sort(idx, dim=-1)
     vals = torch.gather(vals, -1, perm)
     vals, order = torch.sort(vals, dim=-1, stable=True)
@@ -135,16 +131,23 @@ def _fps_op(xyz: Tensor, npoint: int) -> Tensor:
     out = torch.zeros((B, npoint), dtype=torch.int64, device=xyz.device)
     if npoint == 0 or N == 0:
         return out
-    x = xyz.detach()
-    mind = torch.full((B, N), float("inf"), dtype=x.dtype, device=x.device)
-    far = torch.zeros((B,), dtype=torch.int64, device=x.device)
-    ar = torch.arange(B, device=x.device)
+    # coordinate planes (B, 3, N) and preallocated buffers: the loop runs npoint times
+    # over small tensors, so fewer and in-place operations are most of its cost
+    planes = xyz.detach().transpose(1, 2).contiguous()
+    x0, x1, x2 = planes.unbind(1)
+    mind = torch.full((B, N), float("inf"), dtype=xyz.dtype, device=xyz.device)
+    far = torch.zeros((B, 1), dtype=torch.int64, device=xyz.device)
+    d = torch.empty_like(mind)
+    t = torch.empty_like(mind)
     for i in range(npoint):
-        out[:, i] = far
-        c = x[ar, far]  # (B, 3)
-        d = _sqnorm_rows(x, c.unsqueeze(1))  # (B, N)
-        mind = torch.minimum(mind, d)
-        far = torch.argmax(mind, dim=1)  # first maximum -> lowest index on ties
+        out[:, i:i + 1] = far
+        c = torch.gather(planes, 2, far.unsqueeze(1).expand(B, 3, 1))  # (B, 3, 1): the centre
+        # (d0*d0 + d1*d1) + d2*d2 with d = point - centre
+        torch.sub(x0, c[:, 0], out=d).mul_(d)
+        d.add_(torch.sub(x1, c[:, 1], out=t).mul_(t))
+        d.add_(torch.sub(x2, c[:, 2], out=t).mul_(t))
+        torch.minimum(mind, d, out=mind)
+        far = torch.argmax(mind, dim=1, keepdim=True)  # first maximum -> lowest index on ties
     return out
 
 
@@ -226,15 +229,15 @@ def _ball_query_op(xyz: Tensor, new_xyz: Tensor, radius: float, nsample: int) ->
     r = torch.tensor(radius, dtype=xyz.dtype, device=xyz.device)
     r2 = r * r  # squared radius in the input dtype
     d2 = _pairwise_sqdist(new_xyz, xyz)  # (B, S, N)
-    hit = d2 < r2
+    # hits up to and including each position; a row's j-th hit (1-based) is the first position
+    # where the count reaches j, N when the row has fewer hits (exact: integer counts; the
+    # narrowest integer type that holds N keeps the scan and the search cheap)
+    top = max(N, nsample)
+    count_dtype = torch.int16 if top < 2**15 else torch.int32 if top < 2**31 else torch.int64
+    count = (d2 < r2).cumsum(-1, dtype=count_dtype)  # (B, S, N)
     del d2
-    ar = torch.arange(N, dtype=torch.int64, device=xyz.device)
-    key = torch.where(hit, ar, N)  # misses sort last
-    kk = min(nsample, N)
-    first = torch.topk(key, kk, dim=-1, largest=False, sorted=True).values  # (B,S,kk)
-    if kk < nsample:
-        pad = torch.full((B, S, nsample - kk), N, dtype=torch.int64, device=xyz.device)
-        first = torch.cat([first, pad], dim=-1)
+    want = torch.arange(1, nsample + 1, dtype=count_dtype, device=xyz.device).expand(B, S, nsample)
+    first = torch.searchsorted(count, want.contiguous())  # (B, S, nsample) int64, N: no such hit
     head = first[..., :1]
     head = torch.where(head == N, torch.zeros_like(head), head)  # no hit -> 0
     return torch.where(first == N, head.expand_as(first), first)
