@@ -25,6 +25,7 @@ def test_cycles_chain_weights_and_resume_in_place(tmp_path):
     assert "--frame-cache" not in again
     disk = A.train_command(runs, ["d"], "c", "baseline", 2, 2, "disk")
     assert disk[disk.index("--frame-cache") + 1] == "disk"
+    assert "--compile" not in disk and "--compile" in A.train_command(runs, ["d"], "c", "baseline", 2, 2, compile=True)
 
 
 def test_table_is_the_mean_over_training_seeds_of_each_seeds_sampling_mean(tmp_path):

@@ -2,7 +2,7 @@
 part 5; tools/MODEL.md, "The ablation")::
 
     # from tools/, on one core; resumable: run it again after an interruption
-    taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4
+    taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4 --compile
     # a second worker (another core, or a machine sharing RUNS) takes the runs the first does not
     # hold; with the default frame cache each holds ~11 GB (train + train2): on a 24 GB machine
     # give both --frame-cache disk (~4 ms more per sample, the same samples)
@@ -54,9 +54,10 @@ def run_dir(runs: Path, variant: str, seed: int, cycle: int) -> Path:
 
 
 def train_command(runs: Path, data: list[str], cache: str, variant: str, seed: int, cycle: int,
-                  frame_cache: str = "memory") -> list[str]:
+                  frame_cache: str = "memory", compile: bool = False) -> list[str]:
     """The train.py command of one cycle (resuming it when its checkpoint exists); ``frame_cache``
-    is train.py's ``--frame-cache`` (the samples are the same either way)."""
+    and ``compile`` are train.py's ``--frame-cache`` and ``--compile`` (the samples are the same
+    either way; compiled kernels round differently)."""
     out = run_dir(runs, variant, seed, cycle)
     cmd = [sys.executable, "-m", "tricons_pose.train", "--data", *data, "--config", variant, "--out", str(out),
            "--epochs", "100", "--batch-size", "16", "--seed", str(100 * seed + cycle), "--workers", "1",
@@ -65,6 +66,8 @@ def train_command(runs: Path, data: list[str], cache: str, variant: str, seed: i
            "--ckpt-every", "250", "--mask-perturb", "0.2", "--log-every", "100"]
     if frame_cache != "memory":
         cmd += ["--frame-cache", frame_cache]
+    if compile:
+        cmd.append("--compile")
     if (out / "checkpoint.pt").exists():
         cmd.append("--resume")
     elif cycle > 1:
@@ -148,7 +151,8 @@ def advance(args) -> int:
         if not claim(out):
             continue
         try:
-            cmd = train_command(runs, args.data, args.cache_dir, variant, seed, cycle, args.frame_cache)
+            cmd = train_command(runs, args.data, args.cache_dir, variant, seed, cycle, args.frame_cache,
+                                args.compile)
             print(f"[ablation] {variant} seed {seed} cycle {cycle}: {' '.join(cmd[1:])}", flush=True)
             with open(out / "stdout.log", "a", encoding="utf-8") as log:
                 rc = subprocess.call(cmd, cwd=TOOLS, stdout=log, stderr=subprocess.STDOUT)
@@ -275,6 +279,9 @@ def main(argv=None) -> int:
     p.add_argument("--frame-cache", choices=("memory", "disk"), default="memory",
                    help="advance: train.py's --frame-cache; disk lets two workers share the OS page cache "
                         "instead of holding ~11 GB each")
+    p.add_argument("--compile", action="store_true",
+                   help="advance: train.py's --compile (inductor kernels: ~1.2x per step after a few minutes of "
+                        "compilation per cycle)")
     p.add_argument("--poll-s", type=float, default=60.0,
                    help="advance: while only runs held by another advance are left, look again after this long")
     p.add_argument("--data", nargs="+", default=["../data/synthnocs-train", "../data/synthnocs-train2"],

@@ -228,6 +228,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         "fresh optimiser and schedule: fine-tuning on new data; ignored with --resume")
     p.add_argument("--keep-cycle-ends", action="store_true",
                    help="also keep model-step<N>.pt at the end of every learning-rate cycle (lowest rate)")
+    p.add_argument("--compile", action="store_true",
+                   help="run the forward pass and losses through torch.compile (inductor: fused CPU kernels, "
+                        "a few minutes of compilation at start; the custom point operators stay eager)")
     p.add_argument("--dinov2-checkpoint", default=None, metavar="PTH",
                    help="official DINOv2 ViT-S/14 weights (dinov2_vits14_pretrain.pth, a local file) for the "
                         "'dinov2' image encoder (paper config): loaded into the ViT, which is then frozen")
@@ -413,6 +416,12 @@ def train(
     loader = DataLoader(EpochDataset(ds), batch_size=args.batch_size, sampler=sampler, num_workers=args.workers,
                         persistent_workers=args.workers > 0, generator=torch.Generator().manual_seed(args.seed),
                         pin_memory=device.type == "cuda")
+    def forward_losses(inputs: dict, aug: dict, targets: dict) -> dict:
+        return loss_fn(model.forward_train(inputs, aug), targets, cfg)
+
+    if getattr(args, "compile", False):
+        # dynamic=None: static shapes first; a shorter last batch of an epoch recompiles once as dynamic
+        forward_losses = torch.compile(forward_losses, dynamic=None)
     log = open(out / LOG_FILE, "a", encoding="utf-8")
     t_start = time.time()
     last: dict = {}
@@ -426,8 +435,7 @@ def train(
                 t0 = time.time()
                 inputs, aug, targets = split_batch(batch)
                 inputs, aug, targets = (_to_device(x, device) for x in (inputs, aug, targets))
-                outputs = model.forward_train(inputs, aug)
-                losses = loss_fn(outputs, targets, cfg)
+                losses = forward_losses(inputs, aug, targets)
                 total = losses["total"]
                 if not torch.isfinite(total):
                     raise FloatingPointError(f"non-finite loss at step {step + 1}: "
