@@ -339,6 +339,8 @@ def test_opcheck():
         (ops._group_op, (f, idx3)),
         (ops._three_nn_op, (x[:, :5], x)),
         (ops._three_interp_op, (f, i, d.clone().requires_grad_(True))),
+        # mixed precision, as under bf16 autocast: bfloat16 features, float32 weights
+        (ops._three_interp_op, (f.detach().bfloat16().requires_grad_(True), i, d.clone().requires_grad_(True))),
         (ops._tri_op, (q, p, 4)),
     ]
     for op, args in cases:

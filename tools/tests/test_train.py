@@ -342,3 +342,16 @@ def test_compiled_training_follows_the_eager_run(recording, tmp_path):
     assert a.keys() == b.keys()
     for k in a:
         torch.testing.assert_close(b[k], a[k], rtol=1e-4, atol=1e-6)
+
+
+def test_bf16_autocast_trains_float32_weights_close_to_float32(recording, tmp_path):
+    """--autocast bf16: the forward pass in bfloat16 where autocast puts it, the weights and
+    the losses in float32; the first step's loss (same weights, same batch) within bfloat16's
+    rounding of the float32 one."""
+    ref, bf16 = tmp_path / "fp32", tmp_path / "bf16"
+    _run(_args(recording, ref, "--max-steps", "2"))
+    _run(_args(recording, bf16, "--max-steps", "2", "--autocast", "bf16"))
+    first = [_log(d)[0]["total"] for d in (ref, bf16)]
+    assert first[1] != first[0] and abs(first[1] - first[0]) < 2e-2 * abs(first[0])
+    state = torch.load(bf16 / T.CKPT_FILE, weights_only=False)["model"]
+    assert all(v.dtype == torch.float32 for v in state.values() if v.is_floating_point())

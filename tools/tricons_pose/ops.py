@@ -348,7 +348,9 @@ def _three_interp_op(features: Tensor, idx: Tensor, weight: Tensor) -> Tensor:
 
 @_three_interp_op.register_fake
 def _(features: Tensor, idx: Tensor, weight: Tensor) -> Tensor:
-    return features.new_empty((features.shape[0], features.shape[1], idx.shape[1]))
+    # the product promotes: bfloat16 features (autocast) with float32 weights give float32
+    return features.new_empty((features.shape[0], features.shape[1], idx.shape[1]),
+                              dtype=torch.promote_types(features.dtype, weight.dtype))
 
 
 def _three_interp_setup(ctx, inputs, output):

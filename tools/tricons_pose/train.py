@@ -231,6 +231,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--compile", action="store_true",
                    help="run the forward pass and losses through torch.compile (inductor: fused CPU kernels, "
                         "a few minutes of compilation at start; the custom point operators stay eager)")
+    p.add_argument("--autocast", choices=("off", "bf16"), default="off",
+                   help="bf16: the forward pass under torch.autocast(bfloat16) (matrix products and convolutions "
+                        "in bfloat16, weights and losses float32); tools/MODEL.md has its measurement")
     p.add_argument("--dinov2-checkpoint", default=None, metavar="PTH",
                    help="official DINOv2 ViT-S/14 weights (dinov2_vits14_pretrain.pth, a local file) for the "
                         "'dinov2' image encoder (paper config): loaded into the ViT, which is then frozen")
@@ -416,8 +419,15 @@ def train(
     loader = DataLoader(EpochDataset(ds), batch_size=args.batch_size, sampler=sampler, num_workers=args.workers,
                         persistent_workers=args.workers > 0, generator=torch.Generator().manual_seed(args.seed),
                         pin_memory=device.type == "cuda")
+    bf16 = getattr(args, "autocast", "off") == "bf16"
+
     def forward_losses(inputs: dict, aug: dict, targets: dict) -> dict:
-        return loss_fn(model.forward_train(inputs, aug), targets, cfg)
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
+            outputs = model.forward_train(inputs, aug)
+        if bf16:  # the losses in float32
+            outputs = {k: v.float() if torch.is_tensor(v) and v.is_floating_point() else v
+                       for k, v in outputs.items()}
+        return loss_fn(outputs, targets, cfg)
 
     if getattr(args, "compile", False):
         # dynamic=None: static shapes first; a shorter last batch of an epoch recompiles once as dynamic
