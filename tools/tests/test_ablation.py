@@ -44,6 +44,33 @@ def test_table_is_the_mean_over_training_seeds_of_each_seeds_sampling_mean(tmp_p
     assert A.ablation_table(runs, 2, "val") is None  # cycle 2 not evaluated
 
 
+def test_convergence_compares_each_means_move_with_its_seeds_spread(tmp_path, capsys):
+    runs = tmp_path / "runs"
+
+    def write(cycle, value_of):
+        for variant, _ in A.VARIANTS:
+            for seed in A.SEEDS:
+                for s in range(3):
+                    _report(A.run_dir(runs, variant, seed, cycle) / "eval-val" / f"gt-seed{s}.eval.json",
+                            value_of(variant, seed))
+
+    write(1, lambda v, seed: 10.0 + seed)  # seeds 11 and 12: mean 11.5
+    assert A.convergence(runs, 1, "val") is None and A.convergence(runs, 2, "val") is None
+    write(2, lambda v, seed: 20.0 + 3 * seed)  # 23 and 26: mean 24.5, moved 13 > spread 3
+    moves = A.convergence(runs, 2, "val")
+    assert len(moves) == len(A.VARIANTS) * len(A.PAPER_METRICS)
+    assert all(abs(mv - 13.0) < 1e-9 and abs(sp - 3.0) < 1e-9 for _, _, mv, sp in moves)
+    assert not A.converged(moves)
+    # one variant still moving is enough to say no; every mean within its spread says yes
+    write(3, lambda v, seed: (30.0 if v == "shipped" else 24.5) + (seed - 1.5) * 3)
+    assert not A.converged(A.convergence(runs, 3, "val"))
+    write(4, lambda v, seed: (31.0 if v == "shipped" else 23.0) + (seed - 1.5) * 3)
+    assert A.converged(A.convergence(runs, 4, "val"))
+    A.main(["table", "--runs", str(runs)])
+    out = capsys.readouterr().out
+    assert "round 2 against 1: not converged: 24 of 24" in out and "round 4 against 3: converged" in out
+
+
 def test_collect_keeps_the_adam_state_only_of_unfinished_cycles_and_restore_reverses_it(tmp_path):
     runs, dest = tmp_path / "runs", tmp_path / "dest"
     done, going = A.run_dir(runs, "shipped", 1, 1), A.run_dir(runs, "shipped", 1, 2)

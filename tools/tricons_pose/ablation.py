@@ -211,6 +211,32 @@ def ablation_table(runs: Path, cycle: int, split: str, metrics=PAPER_METRICS) ->
     return table(rows, metrics, bold_best=True)
 
 
+def convergence(runs: Path, cycle: int, split: str, metrics=PAPER_METRICS) -> list[tuple[str, str, float, float]] | None:
+    """The stopping rule (tools/MODEL.md, "The ablation"): a round converged when it moved no
+    variant's mean by more than that variant's spread between training seeds. Per variant and
+    metric: (name, metric, move of the mean from cycle - 1 to ``cycle``, spread at ``cycle``);
+    None unless every run has evaluations of both cycles."""
+    if cycle < 2:
+        return None
+    out = []
+    for variant, name in VARIANTS:
+        seeds_of = {}  # cycle -> one report per training seed
+        for c in (cycle - 1, cycle):
+            seeds_of[c] = [run_mean(run_dir(runs, variant, s, c) / f"eval-{split}") for s in SEEDS]
+            if any(r is None for r in seeds_of[c]):
+                return None
+        for m in metrics:
+            b = [r["mean"][m] for r in seeds_of[cycle - 1]]
+            a = [r["mean"][m] for r in seeds_of[cycle]]
+            out.append((name, m, sum(a) / len(a) - sum(b) / len(b), max(a) - min(a)))
+    return out
+
+
+def converged(moves: list[tuple[str, str, float, float]]) -> bool:
+    """Whether no mean moved by more than its seeds' spread."""
+    return all(abs(move) <= spread for _, _, move, spread in moves)
+
+
 def show(args) -> int:
     runs = Path(args.runs).resolve()
     shown = False
@@ -221,6 +247,14 @@ def show(args) -> int:
                 break
             continue
         print(f"\nSynthNOCS-{args.split}, after {cycle} cycle(s) ({cycle * CYCLE_STEPS} steps):\n\n{t}")
+        moves = convergence(runs, cycle, args.split)
+        if moves is not None:
+            worst = max(moves, key=lambda x: abs(x[2]) - x[3])
+            print(f"\nround {cycle} against {cycle - 1}: "
+                  + ("converged (no mean moved by more than its seeds' spread)" if converged(moves) else
+                     f"not converged: {sum(abs(mv) > sp for _, _, mv, sp in moves)} of {len(moves)} means moved by "
+                     f"more than their seeds' spread (most: {worst[0]} {worst[1]} {worst[2]:+.1f}, "
+                     f"spread {worst[3]:.1f})"))
         shown = True
     if not shown:
         print("no cycle has an evaluation of every run yet", file=sys.stderr)
