@@ -1,6 +1,8 @@
 """Tests of tricons_pose.ablation: the cycle chain's commands, the table, collect/restore."""
+import argparse
 import gzip
 import json
+from pathlib import Path
 
 from tricons_pose import ablation as A
 
@@ -134,3 +136,32 @@ def test_workers_share_a_round_through_locks_and_take_over_a_dead_ones(tmp_path)
     assert not A.held(d)  # this process's own lock
     _finish(runs, *first)
     assert A.next_cycle(runs, 1) is None
+
+
+def test_advance_evaluates_each_finished_cycle_when_asked_and_keeps_training_when_that_fails(tmp_path, monkeypatch):
+    runs = tmp_path / "runs"
+    trained, evaluated = [], []
+
+    def fake_train(cmd, cwd, stdout, stderr):
+        out = Path(cmd[cmd.index("--out") + 1])
+        trained.append(out)
+        (out / A.END).write_bytes(b"w")
+        return 0
+
+    def fake_eval(args):
+        evaluated.append(len(trained))
+        if len(trained) == 2:
+            raise SystemExit("eval_runtime.sh exited with 1")
+        return 0
+
+    monkeypatch.setattr(A.subprocess, "call", fake_train)
+    monkeypatch.setattr(A, "evaluate", fake_eval)
+    args = argparse.Namespace(runs=str(runs), cycles=1, data=["d"], cache_dir="c", frame_cache="memory",
+                              compile=False, poll_s=0.0, eval=True, split="val")
+    assert A.advance(args) == 0
+    n = len(A.VARIANTS) * len(A.SEEDS)
+    assert len(trained) == n and evaluated == list(range(1, n + 1))  # after every cycle, past the failure
+    args.eval, trained[:], evaluated[:] = False, [], []
+    args.cycles = 2
+    A.advance(args)
+    assert len(trained) == n and evaluated == []

@@ -2,7 +2,7 @@
 part 5; tools/MODEL.md, "The ablation")::
 
     # from tools/, on one core; resumable: run it again after an interruption
-    taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4 --compile
+    taskset -c 0 .venv/bin/python -m tricons_pose.ablation advance --cycles 4 --compile --eval
     # a second worker (another core, or a machine sharing RUNS) takes the runs the first does not
     # hold; with the default frame cache each holds ~11 GB (train + train2): on a 24 GB machine
     # give both --frame-cache disk (~4 ms more per sample, the same samples)
@@ -160,6 +160,13 @@ def advance(args) -> int:
             (out / "advance.lock").unlink(missing_ok=True)
         if rc != 0:
             raise SystemExit(f"{out}: train.py exited with {rc} (see {out / 'stdout.log'})")
+        if args.eval:
+            # on this worker's core, between cycles: every finished cycle gets its evaluation
+            # even when no one is there to run `eval`; a failed evaluation stops no training
+            try:
+                evaluate(args)
+            except SystemExit as e:
+                print(f"[ablation] evaluation failed, training goes on: {e}", flush=True)
 
 
 def finished(runs: Path):
@@ -316,6 +323,8 @@ def main(argv=None) -> int:
     p.add_argument("--compile", action="store_true",
                    help="advance: train.py's --compile (inductor kernels: ~1.2x per step after a few minutes of "
                         "compilation per cycle)")
+    p.add_argument("--eval", action="store_true",
+                   help="advance: after each cycle, run `eval` (on --split) for every finished cycle that lacks one")
     p.add_argument("--poll-s", type=float, default=60.0,
                    help="advance: while only runs held by another advance are left, look again after this long")
     p.add_argument("--data", nargs="+", default=["../data/synthnocs-train", "../data/synthnocs-train2"],
