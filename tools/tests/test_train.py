@@ -342,6 +342,14 @@ def test_compiled_training_follows_the_eager_run(recording, tmp_path):
     assert a.keys() == b.keys()
     for k in a:
         torch.testing.assert_close(b[k], a[k], rtol=1e-4, atol=1e-6)
+    # batches of 3 from 8 instances: 3, 3, then 2; the short one runs eager, nothing recompiles
+    from torch._dynamo.utils import counters
+
+    torch._dynamo.reset()
+    counters.clear()
+    short = T.train(_args(recording, tmp_path / "short", "--max-steps", "3", "--batch-size", "3", "--compile"),
+                    model_factory=no_dropout, loss_fn=tiny_loss, cfg=CFG)
+    assert short["step"] == 3 and counters["stats"]["unique_graphs"] == 1
 
 
 def test_bf16_autocast_trains_float32_weights_close_to_float32(recording, tmp_path):

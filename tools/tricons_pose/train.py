@@ -429,9 +429,7 @@ def train(
                        for k, v in outputs.items()}
         return loss_fn(outputs, targets, cfg)
 
-    if getattr(args, "compile", False):
-        # dynamic=None: static shapes first; a shorter last batch of an epoch recompiles once as dynamic
-        forward_losses = torch.compile(forward_losses, dynamic=None)
+    compiled_losses = torch.compile(forward_losses, dynamic=False) if getattr(args, "compile", False) else None
     log = open(out / LOG_FILE, "a", encoding="utf-8")
     t_start = time.time()
     last: dict = {}
@@ -445,7 +443,11 @@ def train(
                 t0 = time.time()
                 inputs, aug, targets = split_batch(batch)
                 inputs, aug, targets = (_to_device(x, device) for x in (inputs, aug, targets))
-                losses = forward_losses(inputs, aug, targets)
+                # the compiled graph is for full batches; an epoch's shorter last batch runs eager
+                # (compiling its shape too cost 150 s, once per process)
+                full = int(inputs["pts"].shape[0]) == args.batch_size
+                losses = (compiled_losses if compiled_losses is not None and full else forward_losses)(
+                    inputs, aug, targets)
                 total = losses["total"]
                 if not torch.isfinite(total):
                     raise FloatingPointError(f"non-finite loss at step {step + 1}: "
